@@ -1,0 +1,1 @@
+"""Insertion task on MuJoCo + dm_control composer, with gymnasium adapters."""

@@ -1,0 +1,377 @@
+"""Peg-in-socket insertion as a dm_control composer Task (TacSL's task on MuJoCo)."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from dm_control import composer, mjcf
+from dm_control.composer.observation import observable
+from dm_env import specs
+
+from vitac.envs import props
+from vitac.envs.config import InsertionConfig
+from vitac.envs.gripper import PAD_LENGTH, PAD_WIDTH, ParallelGripper
+from vitac.sensors.tactile import TactileFieldSensor
+
+_DOWN = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # hand frame pointing down: Rx(pi)
+PAD_TIMECONST = 0.01  # pad contact time constant (s) at the nominal stiffness 250
+SETTLE_SUBSTEPS = 30  # TacSL closes the gripper for 30 sim steps with gravity off
+
+
+class Arena(composer.Arena):
+    """Table with its top at z = 0, lit for a 64x64 wrist camera."""
+
+    def _build(self, camera_size: int):
+        super()._build(name="arena")
+        root = self._mjcf_root
+        root.option.set_attributes(cone="elliptic", impratio=10, integrator="implicitfast", noslip_iterations=0)
+        root.option.flag.set_attributes(multiccd="enable")
+        root.visual.__getattr__("global").set_attributes(offwidth=max(camera_size, 320), offheight=max(camera_size, 240))
+        root.visual.quality.set_attributes(offsamples=0, shadowsize=0)
+        root.visual.map.set_attributes(znear=0.005)
+        self._mjcf_root.worldbody.add("light", pos=(0.5, 0, 1.5), dir=(0, 0, -1), castshadow=False)
+        self._mjcf_root.worldbody.add("geom", name="table", type="box", size=(0.63, 0.45, 0.02),
+                                      pos=(0.5, 0, -0.02), rgba=(0.55, 0.45, 0.35, 1),
+                                      contype=1, conaffinity=12)
+        self._mjcf_root.worldbody.add("camera", name="outside", pos=(0.5, -0.45, 0.35), xyaxes=(1, 0, 0, 0, 0.6, 0.8),
+                                      fovy=45)
+
+
+def euler_zyx_from_matrix(m: np.ndarray) -> np.ndarray:
+    """(yaw, pitch, roll) with m = Rz(yaw) Ry(pitch) Rx(roll)."""
+    return np.array([np.arctan2(m[1, 0], m[0, 0]), -np.arcsin(np.clip(m[2, 0], -1, 1)), np.arctan2(m[2, 1], m[2, 2])])
+
+
+def matrix_from_euler_zyx(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
+    angle = np.linalg.norm(rotvec)
+    if angle <= 1e-6:  # TacSL's clamp_rot_thresh: below it the delta is the identity
+        return np.eye(3)
+    k = rotvec / angle
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+
+
+def rotation_vector(m: np.ndarray) -> np.ndarray:
+    """Axis-angle vector of a rotation matrix."""
+    quat = np.empty(4)
+    mujoco.mju_mat2Quat(quat, m.ravel())
+    vec = np.empty(3)
+    mujoco.mju_quat2Vel(vec, quat, 1.0)
+    return vec
+
+
+def keypoint_offsets(num: int, scale: float) -> np.ndarray:
+    return (np.linspace(0.0, 1.0, num) - 0.5) * scale
+
+
+class InsertionTask(composer.Task):
+    """Insert a grasped peg into a socket; TacSL's reward, success and randomization.
+
+    Args:
+        config: validated task settings.
+    """
+
+    def __init__(self, config: InsertionConfig):
+        self.config = config
+        self._arena = Arena(camera_size=config.camera_size)
+        self.gripper = ParallelGripper(
+            hand_mass=config.hand_mass, hand_inertia=config.hand_inertia, prop_gains=config.prop_gains,
+            deriv_gains=config.deriv_gains, joint_damping=config.joint_damping, finger_kp=config.finger_kp,
+            finger_kd=config.finger_kd, pad_friction=config.pad_friction, camera_fovy=config.camera_fovy)
+        self._arena.attach(self.gripper)
+        self.peg_geometry = config.peg_geometry()
+        self.peg = props.Peg(self.peg_geometry, density=config.density, friction=config.peg_friction)
+        self._arena.add_free_entity(self.peg)
+        hole_x, hole_y = config.hole_half_extents()
+        self.socket = props.Socket(config.peg_shape, hole_x, hole_y, friction=config.socket_friction)
+        self._socket_frame = self._arena.attach(self.socket)
+        # A mocap body: MuJoCo expects moved static bodies to be mocap (moving body_pos of a static body
+        # at run time silently breaks collision detection elsewhere in the scene).
+        self._socket_frame.mocap = "true"
+        self.set_timesteps(control_timestep=1.0 / config.control_hz,
+                           physics_timestep=1.0 / (config.control_hz * config.physics_substeps))
+        self.tactile = TactileFieldSensor(config.taxel_rows, config.taxel_cols, PAD_WIDTH, PAD_LENGTH,
+                                          config.taxel_margin, config.tactile_kn, config.tactile_kt, config.tactile_mu)
+        self._keypoints = keypoint_offsets(config.num_keypoints, config.keypoint_scale)
+        self._renderer = None
+        self._ids = None
+        self._step = 0
+        self._prev_action = np.zeros(6)
+        self._socket_noise = np.zeros(3)
+        self._f_ref = np.zeros((2, 3, config.taxel_rows, config.taxel_cols))
+        self.first_success_step = -1
+        self._build_observables()
+
+    # ----------------------------------------------------------------------------------- composer API
+    @property
+    def root_entity(self):
+        return self._arena
+
+    @property
+    def task_observables(self):
+        return self._observables
+
+    def action_spec(self, physics):
+        return specs.BoundedArray((6,), np.float64, -np.ones(6), np.ones(6), name="delta_pose")
+
+    def after_compile(self, physics, random_state):
+        bind = physics.bind
+        m = physics.model
+        self._ids = dict(
+            hand_qpos=np.array([m.jnt_qposadr[bind(j).element_id] for j in self.gripper.joints]),
+            hand_dof=np.array([m.jnt_dofadr[bind(j).element_id] for j in self.gripper.joints]),
+            hand_act=np.array([bind(a).element_id for a in self.gripper.actuators]),
+            hand_joint=np.array([bind(j).element_id for j in self.gripper.joints]),
+            finger_qpos=np.array([m.jnt_qposadr[bind(j).element_id] for j in self.gripper.finger_joints]),
+            finger_act=np.array([m.actuator(f"gripper/{s}_finger").id for s in ("left", "right")]),
+            tcp=bind(self.gripper.tcp_site).element_id,
+            hand_body=bind(self.gripper.hand).element_id,
+            pad_sites=[bind(s).element_id for s in self.gripper.pad_sites],
+            pad_geoms=[bind(g).element_id for g in self.gripper.pads],
+            peg_body=bind(self.peg.body).element_id,
+            peg_geoms={bind(self.peg.geom).element_id, bind(self.peg.grasp_geom).element_id},
+            peg_qpos=m.jnt_qposadr[bind(self.peg.body).element_id and
+                                   m.body_jntadr[bind(self.peg.body).element_id]],
+            peg_dof=m.jnt_dofadr[m.body_jntadr[bind(self.peg.body).element_id]],
+            socket_mocap=m.body_mocapid[m.body("socket/").id],
+            socket_geoms=set(np.flatnonzero(m.geom_bodyid == bind(self.socket.body).element_id).tolist()),
+        )
+        self._nominal_damping = m.dof_damping[self._ids["hand_dof"]].copy()
+        self._nominal_pad_solref = m.geom_solref[self._ids["pad_geoms"]].copy()
+
+    def initialize_episode(self, physics, random_state):
+        cfg, r, ids = self.config, self.config.randomization, self._ids
+        m, d = physics.model.ptr, physics.data.ptr
+
+        def sample(low, high):
+            low, high = np.asarray(low, float), np.asarray(high, float)
+            return random_state.uniform(low, high) if r.enabled else 0.5 * (low + high)
+
+        # Socket pose (fixed base) and its observation noise, drawn once per episode.
+        physics.data.mocap_pos[ids["socket_mocap"]] = sample(r.socket_pos_low, r.socket_pos_high)
+        noise = r.socket_obs_noise
+        self._socket_noise = sample([-noise] * 3, [noise] * 3)
+        # Contact and joint parameter noise.
+        stiffness, damping = sample(*r.pad_stiffness), sample(*r.pad_damping)
+        # Pad compliance as MuJoCo's (time constant, damping ratio): a stiffer elastomer responds faster.
+        physics.model.geom_solref[ids["pad_geoms"]] = (PAD_TIMECONST * np.sqrt(250.0 / stiffness), 1.0 + damping)
+        physics.model.dof_damping[ids["hand_dof"]] = self._nominal_damping + sample(*r.joint_damping_noise)
+        # Hand pose: fingertip midpoint position and the three hinge angles.
+        pos = sample(r.ee_pos_low, r.ee_pos_high)
+        roll, pitch, yaw = sample(r.ee_rot_low, r.ee_rot_high)
+        qpos = np.concatenate([pos, [yaw, pitch, roll]])
+        physics.data.qpos[:] = physics.model.qpos0
+        physics.data.qvel[:] = 0.0
+        physics.data.qpos[ids["hand_qpos"]] = qpos
+        physics.data.ctrl[ids["hand_act"]] = qpos
+        # Peg in the hand: its bottom `depth` below the fingertips, tilted about the closing axis
+        # around the middle of the grasped segment.
+        depth, tilt = sample(*r.peg_in_hand_depth), sample(*r.peg_in_hand_tilt)
+        pivot = np.array([0.0, 0.0, -0.5 * (self.peg_geometry.length - depth)])
+        tilt_rot = matrix_from_euler_zyx(0.0, tilt, 0.0)
+        peg_rot_hand = tilt_rot @ _DOWN  # peg z axis points up the hand, away from the fingertips
+        peg_pos_hand = pivot + tilt_rot @ (np.array([0.0, 0.0, depth]) - pivot)
+        hand_rot = _DOWN @ matrix_from_euler_zyx(yaw, pitch, roll)
+        peg_pos = pos + hand_rot @ peg_pos_hand
+        peg_quat = np.empty(4)
+        mujoco.mju_mat2Quat(peg_quat, (hand_rot @ peg_rot_hand).ravel())
+        physics.data.qpos[ids["peg_qpos"]:ids["peg_qpos"] + 7] = np.concatenate([peg_pos, peg_quat])
+        # Close the fingers on the peg with gravity off, as TacSL does, then turn gravity back on.
+        half_grip = self.peg_geometry.half_y if cfg.peg_shape == "rectangular" else self.peg_geometry.half_x
+        physics.data.qpos[ids["finger_qpos"]] = half_grip
+        physics.data.ctrl[ids["finger_act"]] = 0.0
+        gravity = physics.model.opt.gravity.copy()
+        physics.model.opt.gravity[:] = 0.0
+        mujoco.mj_forward(m, d)
+        for _ in range(SETTLE_SUBSTEPS):
+            mujoco.mj_step(m, d)
+        physics.model.opt.gravity[:] = gravity
+        mujoco.mj_forward(m, d)
+        self._step = 0
+        self._prev_action = np.zeros(6)
+        self.first_success_step = -1
+        self._f_ref[:] = 0.0
+        if cfg.tactile_residual:  # paper eq. 2: residual against the field recorded at grasp
+            self._f_ref[0], self._f_ref[1] = self.raw_tactile(physics, 0), self.raw_tactile(physics, 1)
+        self._cache_step = None
+
+    def before_step(self, physics, action, random_state):
+        cfg, ids = self.config, self._ids
+        action = np.clip(np.asarray(action, float), -1.0, 1.0)
+        qpos = physics.data.qpos[ids["hand_qpos"]]
+        target = np.empty(6)
+        target[:3] = qpos[:3] + action[:3] * cfg.pos_action_scale
+        # Rotation delta: axis-angle in the world frame applied to the current orientation (TacSL).
+        current = _DOWN @ matrix_from_euler_zyx(*qpos[3:])
+        desired = axis_angle_matrix(action[3:] * cfg.rot_action_scale) @ current
+        yaw, pitch, roll = euler_zyx_from_matrix(_DOWN.T @ desired)
+        yaw = qpos[3] + (yaw - qpos[3] + np.pi) % (2 * np.pi) - np.pi  # no wrap-around jumps
+        target[3:] = (yaw, pitch, roll)
+        physics.data.ctrl[ids["hand_act"]] = target
+        self._action_delta = np.linalg.norm(action - self._prev_action)
+        self._prev_action = action
+
+    def after_step(self, physics, random_state):
+        self._step += 1
+        if self.first_success_step < 0 and self.keypoint_distance(physics) < self.config.success_threshold:
+            self.first_success_step = self._step
+
+    def should_terminate_episode(self, physics):
+        return self._step >= self.config.episode_steps
+
+    def get_discount(self, physics):
+        return 1.0  # TacSL ends episodes by time-out only: always a truncation
+
+    def get_reward(self, physics):
+        cfg = self.config
+        distance = self.keypoint_distance(physics)
+        kp = -distance
+        if cfg.use_shaped_keypoint_reward:
+            peg_pos = physics.data.xpos[self._ids["peg_body"]]
+            socket_top = self.socket_pos(physics) + np.array([0.0, 0.0, props.HOLE_DEPTH])
+            centred = np.linalg.norm(peg_pos[:2] - socket_top[:2]) < self.peg_geometry.half_x
+            if not centred and peg_pos[2] < socket_top[2]:
+                kp *= 10.0
+        kp_exp = 1.0 / (np.exp(-50.0 * distance) + 0.0001 + np.exp(50.0 * distance))
+        return cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
+
+    # ------------------------------------------------------------------------------------ task state
+    def socket_pos(self, physics) -> np.ndarray:
+        return physics.data.mocap_pos[self._ids["socket_mocap"]].copy()
+
+    def keypoint_distance(self, physics) -> float:
+        """Mean distance between the peg's and the goal's keypoints along their z axes."""
+        peg_pos = physics.data.xpos[self._ids["peg_body"]]
+        peg_z = physics.data.xmat[self._ids["peg_body"]].reshape(3, 3)[:, 2]
+        socket_pos = self.socket_pos(physics)
+        peg_kp = peg_pos + self._keypoints[:, None] * peg_z
+        goal_kp = socket_pos + self._keypoints[:, None] * np.array([0.0, 0.0, 1.0])
+        return float(np.linalg.norm(peg_kp - goal_kp, axis=1).mean())
+
+    def is_success(self, physics) -> bool:
+        return self.keypoint_distance(physics) < self.config.success_threshold
+
+    @property
+    def step_count(self) -> int:
+        return self._step
+
+    def get_state(self) -> dict:
+        """Task state beyond physics, for exact resume."""
+        return dict(step=self._step, prev_action=self._prev_action.copy(), socket_noise=self._socket_noise.copy(),
+                    f_ref=self._f_ref.copy(), first_success_step=self.first_success_step,
+                    action_delta=getattr(self, "_action_delta", 0.0))
+
+    def set_state(self, state: dict) -> None:
+        self._step = state["step"]
+        self._prev_action = state["prev_action"].copy()
+        self._socket_noise = state["socket_noise"].copy()
+        self._f_ref = state["f_ref"].copy()
+        self.first_success_step = state["first_success_step"]
+        self._action_delta = state["action_delta"]
+
+    # ---------------------------------------------------------------------------------- observations
+    def _velocity(self, physics, obj_type, obj_id):
+        res = np.empty(6)
+        mujoco.mj_objectVelocity(physics.model.ptr, physics.data.ptr, obj_type, obj_id, res, 0)
+        return res[3:], res[:3]  # linear, angular (world frame)
+
+    def raw_tactile(self, physics, side: int) -> np.ndarray:
+        ids, d = self._ids, physics.data
+        site = ids["pad_sites"][side]
+        peg = ids["peg_body"]
+        pad_lin, pad_ang = self._velocity(physics, mujoco.mjtObj.mjOBJ_SITE, site)
+        peg_lin, peg_ang = self._velocity(physics, mujoco.mjtObj.mjOBJ_BODY, peg)
+        return self.tactile.field(self.peg_geometry, d.site_xpos[site], d.site_xmat[site].reshape(3, 3), pad_lin,
+                                  pad_ang, d.xpos[peg], d.xmat[peg].reshape(3, 3), peg_lin, peg_ang)
+
+    def tactile_field(self, physics, side: int) -> np.ndarray:
+        """Residual force field of one pad (paper eq. 2), float32 (3, rows, cols)."""
+        return (self.raw_tactile(physics, side) - self._f_ref[side]).astype(np.float32)
+
+    def contact_forces(self, physics) -> np.ndarray:
+        """World-frame forces on the peg from the socket, the left pad and the right pad (9,)."""
+        ids, d, m = self._ids, physics.data, physics.model
+        out = np.zeros((3, 3))
+        peg_geoms = ids["peg_geoms"]
+        left, right = ids["pad_geoms"]
+        force = np.empty(6)
+        for i in range(d.ncon):
+            contact = d.contact[i]
+            g1, g2 = contact.geom1, contact.geom2
+            if g1 not in peg_geoms and g2 not in peg_geoms:
+                continue
+            other = g2 if g1 in peg_geoms else g1
+            slot = 0 if other in ids["socket_geoms"] else 1 if other == left else 2 if other == right else -1
+            if slot < 0:
+                continue
+            mujoco.mj_contactForce(m.ptr, d.ptr, i, force)
+            world = contact.frame.reshape(3, 3).T @ force[:3]  # force of geom1 on geom2
+            out[slot] += world if g2 in peg_geoms else -world
+        return out.ravel().astype(np.float32)
+
+    def render_wrist(self, physics) -> np.ndarray:
+        """64x64 RGB uint8 (H, W, 3) from one persistent renderer (dm_control rebuilds a scene per frame)."""
+        if self._renderer is None:
+            size = self.config.camera_size
+            self._renderer = mujoco.Renderer(physics.model.ptr, size, size)
+            self._scene_option = mujoco.MjvOption()
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+            self._camera_id = physics.model.camera("gripper/wrist").id
+        self._renderer.update_scene(physics.data.ptr, self._camera_id, self._scene_option)
+        return self._renderer.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def proprio(self, physics) -> np.ndarray:
+        ids, d = self._ids, physics.data
+        socket_quat = np.array([1.0, 0, 0, 0])
+        return np.concatenate([d.site_xpos[ids["tcp"]], d.xquat[ids["hand_body"]],
+                               self.socket_pos(physics) + self._socket_noise, socket_quat,
+                               d.qpos[ids["finger_qpos"]]]).astype(np.float32)
+
+    def peg_state(self, physics) -> np.ndarray:
+        ids, d = self._ids, physics.data
+        return np.concatenate([d.xpos[ids["peg_body"]], d.xquat[ids["peg_body"]]]).astype(np.float32)
+
+    def critic_state(self, physics) -> np.ndarray:
+        ids, d = self._ids, physics.data
+        lin, ang = self._velocity(physics, mujoco.mjtObj.mjOBJ_SITE, ids["tcp"])
+        return np.concatenate([
+            d.site_xpos[ids["tcp"]], d.xquat[ids["hand_body"]], d.xpos[ids["peg_body"]], d.xquat[ids["peg_body"]],
+            self.socket_pos(physics), [1.0, 0, 0, 0], d.qpos[ids["finger_qpos"]], lin, ang,
+            self.contact_forces(physics)]).astype(np.float32)
+
+    def _build_observables(self):
+        sources = dict(
+            proprio=self.proprio, peg_state=self.peg_state, contact_forces=self.contact_forces,
+            critic_state=self.critic_state,
+            wrist=lambda physics: np.ascontiguousarray(self.render_wrist(physics).transpose(2, 0, 1)),
+            tactile_left=lambda physics: self.tactile_field(physics, 0),
+            tactile_right=lambda physics: self.tactile_field(physics, 1),
+        )
+        self._observables = {}
+        for name, fn in sources.items():
+            obs = observable.Generic(fn)
+            obs.enabled = name in self.config.observations
+            self._observables[name] = obs
+
+
+def build_environment(config: InsertionConfig, seed: int | None = None) -> composer.Environment:
+    """A composer Environment whose episodes last `episode_steps` control steps."""
+    task = InsertionTask(config)
+    return composer.Environment(task, random_state=seed, time_limit=float("inf"), strip_singleton_obs_buffer_dim=True,
+                                raise_exception_on_physics_error=True)
+
+
+__all__ = ["InsertionTask", "build_environment", "mjcf"]
