@@ -1,0 +1,104 @@
+"""gymnasium adapter of the composer insertion task: terminated vs truncated, success info, exact state."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from dm_env import StepType
+
+from vitac.envs.config import InsertionConfig
+from vitac.envs.insertion import build_environment
+
+
+def _space(spec) -> gym.spaces.Box:
+    if spec.dtype == np.uint8:
+        return gym.spaces.Box(0, 255, spec.shape, np.uint8)
+    return gym.spaces.Box(-np.inf, np.inf, spec.shape, np.float32)
+
+
+class InsertionEnv(gym.Env):
+    """One insertion environment with gymnasium's API.
+
+    composer ends every episode at the time limit with discount 1: that is reported as `truncated`
+    (bootstrap), and only a discount of 0 as `terminated`. `info` carries `success` (judged at the
+    last step), `steps_to_success` (first step the criterion held, -1 if never) and `keypoint_distance`.
+
+    Args:
+        config: task settings (an InsertionConfig or a dict of its keys).
+        seed: seed of the episode random state.
+    """
+
+    metadata = {"render_modes": ["rgb_array"]}
+
+    def __init__(self, config: InsertionConfig | dict | None = None, seed: int | None = None):
+        self.config = config if isinstance(config, InsertionConfig) else InsertionConfig.from_dict(config)
+        self._env = build_environment(self.config, seed=seed)
+        obs_spec = self._env.observation_spec()
+        self.observation_space = gym.spaces.Dict({k: _space(v) for k, v in obs_spec.items()})
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (6,), np.float32)
+        self._needs_reset = True
+
+    @property
+    def task(self):
+        return self._env.task
+
+    @property
+    def physics(self):
+        return self._env.physics
+
+    def _info(self) -> dict:
+        task, physics = self._env.task, self._env.physics
+        return dict(success=bool(task.is_success(physics)), steps_to_success=int(task.first_success_step),
+                    keypoint_distance=float(task.keypoint_distance(physics)))
+
+    def reset(self, *, seed: int | None = None, options=None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self._env.random_state.seed(seed)
+        timestep = self._env.reset()
+        self._needs_reset = False
+        return dict(timestep.observation), self._info()
+
+    def step(self, action):
+        if self._needs_reset:
+            raise RuntimeError("InsertionEnv.step called after the episode ended: call reset() first")
+        timestep = self._env.step(np.asarray(action, dtype=np.float64))
+        terminated = timestep.step_type == StepType.LAST and timestep.discount == 0.0
+        truncated = timestep.step_type == StepType.LAST and not terminated
+        self._needs_reset = terminated or truncated
+        return dict(timestep.observation), float(timestep.reward), bool(terminated), bool(truncated), self._info()
+
+    def render(self):
+        return self._env.task.render_wrist(self._env.physics)
+
+    def get_state(self) -> dict:
+        """Everything needed to continue this environment exactly: physics, randomized model fields, RNG."""
+        physics, task = self._env.physics, self._env.task
+        ids = task._ids
+        return dict(physics=physics.get_state().copy(), mocap_pos=physics.data.mocap_pos.copy(),
+                    pad_solref=physics.model.geom_solref[ids["pad_geoms"]].copy(),
+                    dof_damping=physics.model.dof_damping[ids["hand_dof"]].copy(),
+                    ctrl=physics.data.ctrl.copy(), task=task.get_state(), rng=self._env.random_state.get_state(),
+                    needs_reset=self._needs_reset, composer_reset_next=self._env._reset_next_step)
+
+    def set_state(self, state: dict) -> None:
+        physics, task = self._env.physics, self._env.task
+        ids = task._ids
+        physics.model.geom_solref[ids["pad_geoms"]] = state["pad_solref"]
+        physics.model.dof_damping[ids["hand_dof"]] = state["dof_damping"]
+        physics.data.mocap_pos[:] = state["mocap_pos"]
+        physics.data.ctrl[:] = state["ctrl"]
+        physics.set_state(state["physics"])
+        physics.forward()
+        task.set_state(state["task"])
+        self._env.random_state.set_state(state["rng"])
+        self._needs_reset = state["needs_reset"]
+        self._env._reset_next_step = state["composer_reset_next"]
+
+    def observation(self) -> dict:
+        """The current observation, recomputed from physics (used after set_state)."""
+        return {k: np.asarray(v) for k, v in self._env._observation_updater.get_observation().items()}
+
+    def close(self):
+        self._env.task.close()
+        self._env.close()

@@ -1,0 +1,184 @@
+"""N insertion environments over worker processes (several per worker), dict observations in shared memory.
+
+Autoreset is same-step: when an episode ends, the returned observation already starts the next
+episode and `info["final_obs"][i]` holds the last observation of the ended one (for bootstrapping
+truncations), with `info["final_info"][i]` its success statistics.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from multiprocessing import shared_memory
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+from vitac.envs.gym_env import InsertionEnv
+
+
+class _EnvGroup:
+    """k environments stepped in sequence, writing observations into given arrays."""
+
+    def __init__(self, config: dict, seeds: list[int], obs_arrays: dict, offset: int):
+        self.envs = [InsertionEnv(config, seed=s) for s in seeds]
+        self.seeds, self.obs, self.offset = seeds, obs_arrays, offset
+
+    def _write(self, i: int, obs: dict):
+        for k, v in obs.items():
+            self.obs[k][self.offset + i] = v
+
+    def reset(self, seed: int | None):
+        infos = []
+        for i, env in enumerate(self.envs):
+            obs, info = env.reset(seed=None if seed is None else seed + self.offset + i)
+            self._write(i, obs)
+            infos.append(info)
+        return infos
+
+    def step(self, actions: np.ndarray):
+        rewards, terminated, truncated, infos = [], [], [], []
+        for i, env in enumerate(self.envs):
+            obs, reward, term, trunc, info = env.step(actions[i])
+            if term or trunc:
+                info = dict(info, final_obs={k: np.array(v) for k, v in obs.items()})
+                obs, _ = env.reset()
+            self._write(i, obs)
+            rewards.append(reward)
+            terminated.append(term)
+            truncated.append(trunc)
+            infos.append(info)
+        return rewards, terminated, truncated, infos
+
+    def get_state(self):
+        return [env.get_state() for env in self.envs]
+
+    def set_state(self, states):
+        for i, (env, state) in enumerate(zip(self.envs, states, strict=True)):
+            env.set_state(state)
+            self._write(i, env.observation())
+
+    def close(self):
+        for env in self.envs:
+            env.close()
+
+
+def _worker(pipe, config, seeds, shm_specs, offset):
+    shms = {k: shared_memory.SharedMemory(name=name) for k, (name, _, _) in shm_specs.items()}
+    arrays = {k: np.ndarray(shape, dtype, buffer=shms[k].buf) for k, (_, shape, dtype) in shm_specs.items()}
+    group = _EnvGroup(config, seeds, arrays, offset)
+    try:
+        while True:
+            command, payload = pipe.recv()
+            if command == "close":
+                break
+            pipe.send(getattr(group, command)(*payload))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        group.close()
+        for shm in shms.values():
+            shm.close()
+
+
+class InsertionVectorEnv(gym.vector.VectorEnv):
+    """gymnasium VectorEnv of `num_envs` insertion environments in `num_workers` processes.
+
+    Args:
+        config: InsertionConfig keys (a plain dict, sent to the workers).
+        num_envs: number of environments.
+        num_workers: worker processes; 0 steps every environment in this process.
+        seed: environment i is seeded with seed + i.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, config: dict, num_envs: int, num_workers: int = 0, seed: int = 0):
+        if num_envs < 1:
+            raise ValueError(f"algo.num_envs={num_envs!r} is not allowed: expected a positive integer")
+        if num_workers < 0 or (num_workers and num_envs % num_workers):
+            raise ValueError(f"algo.num_workers={num_workers!r} is not allowed: expected 0 or a divisor of "
+                             f"num_envs={num_envs}")
+        self.num_envs, self.num_workers = num_envs, num_workers
+        probe = InsertionEnv(config, seed=seed)
+        self.single_observation_space, self.single_action_space = probe.observation_space, probe.action_space
+        probe.close()
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, num_envs)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, num_envs)
+        self._shms, self.buffers = {}, {}
+        for k, space in self.single_observation_space.spaces.items():
+            shape = (num_envs, *space.shape)
+            nbytes = int(np.prod(shape)) * np.dtype(space.dtype).itemsize
+            shm = shared_memory.SharedMemory(create=True, size=max(nbytes, 1))
+            self._shms[k] = shm
+            self.buffers[k] = np.ndarray(shape, space.dtype, buffer=shm.buf)
+        seeds = [seed + i for i in range(num_envs)]
+        self._pipes, self._procs, self._local = [], [], None
+        if num_workers == 0:
+            self._local = _EnvGroup(config, seeds, self.buffers, 0)
+        else:
+            per = num_envs // num_workers
+            specs = {k: (shm.name, self.buffers[k].shape, self.buffers[k].dtype) for k, shm in self._shms.items()}
+            ctx = mp.get_context("forkserver")
+            for w in range(num_workers):
+                parent, child = ctx.Pipe()
+                proc = ctx.Process(target=_worker, args=(child, config, seeds[w * per:(w + 1) * per], specs, w * per),
+                                   daemon=True)
+                proc.start()
+                self._pipes.append(parent)
+                self._procs.append(proc)
+        self._closed = False
+
+    def _call(self, command: str, payloads: list) -> list:
+        if self._local is not None:
+            return [getattr(self._local, command)(*payloads[0])]
+        for pipe, payload in zip(self._pipes, payloads, strict=True):
+            pipe.send((command, payload))
+        return [pipe.recv() for pipe in self._pipes]
+
+    def _split(self, x) -> list:
+        groups = max(self.num_workers, 1)
+        return np.array_split(np.asarray(x), groups) if x is not None else [None] * groups
+
+    def _observation(self) -> dict:
+        return {k: v.copy() for k, v in self.buffers.items()}
+
+    def reset(self, *, seed: int | None = None, options=None):
+        results = self._call("reset", [(seed,)] * max(self.num_workers, 1))
+        infos = [info for group in results for info in group]
+        return self._observation(), {"env_infos": infos}
+
+    def step(self, actions):
+        actions = np.asarray(actions, dtype=np.float64)
+        results = self._call("step", [(a,) for a in self._split(actions)])
+        rewards, terminated, truncated, infos = [], [], [], []
+        for r, te, tr, inf in results:
+            rewards += r
+            terminated += te
+            truncated += tr
+            infos += inf
+        final_obs = {i: info.pop("final_obs") for i, info in enumerate(infos) if "final_obs" in info}
+        return (self._observation(), np.array(rewards, np.float32), np.array(terminated), np.array(truncated),
+                {"final_obs": final_obs, "env_infos": infos})
+
+    def get_state(self) -> list:
+        return [s for group in self._call("get_state", [()] * max(self.num_workers, 1)) for s in group]
+
+    def set_state(self, states: list) -> dict:
+        per = self.num_envs // max(self.num_workers, 1)
+        self._call("set_state", [(states[i * per:(i + 1) * per],) for i in range(max(self.num_workers, 1))])
+        return self._observation()
+
+    def close(self, **kwargs):
+        if self._closed:
+            return
+        self._closed = True
+        if self._local is not None:
+            self._local.close()
+        for pipe in self._pipes:
+            pipe.send(("close", ()))
+        for proc in self._procs:
+            proc.join(timeout=5)
+        for shm in self._shms.values():
+            shm.close()
+            shm.unlink()

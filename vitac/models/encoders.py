@@ -1,0 +1,67 @@
+"""Per-modality encoders: conv + spatial soft-argmax for images (paper's architecture table), MLP for vectors."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class SpatialSoftArgmax(nn.Module):
+    """Expected (x, y) image coordinates in [-1, 1] of each channel's softmax: (B, C, H, W) -> (B, 2C)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, c, h, w = x.shape
+        weights = torch.softmax(x.reshape(b, c, h * w), dim=-1).reshape(b, c, h, w)
+        ys = torch.linspace(-1.0, 1.0, h, device=x.device, dtype=x.dtype)
+        xs = torch.linspace(-1.0, 1.0, w, device=x.device, dtype=x.dtype)
+        expected_x = (weights.sum(dim=2) * xs).sum(dim=-1)  # (B, C)
+        expected_y = (weights.sum(dim=3) * ys).sum(dim=-1)
+        return torch.cat([expected_x, expected_y], dim=-1)
+
+
+class ConvSoftArgmaxEncoder(nn.Module):
+    """Conv 8x8/2 (32) -> Conv 4x4/1 (64) -> Conv 3x3/1 (64) -> spatial soft-argmax, ReLU, no padding.
+
+    uint8 images (camera pixels) are scaled to [0, 1]; float images (force fields) are used as they are.
+
+    Args:
+        in_shape: (C, H, W) of the input image.
+        channels, kernels, strides: the three conv layers.
+    """
+
+    def __init__(self, in_shape, channels=(32, 64, 64), kernels=(8, 4, 3), strides=(2, 1, 1)):
+        super().__init__()
+        layers, c = [], in_shape[0]
+        h, w = in_shape[1], in_shape[2]
+        for out, k, s in zip(channels, kernels, strides, strict=True):
+            layers += [nn.Conv2d(c, out, k, s), nn.ReLU()]
+            c, h, w = out, (h - k) // s + 1, (w - k) // s + 1
+            if h < 1 or w < 1:
+                raise ValueError(f"observation shape {tuple(in_shape)} is too small for conv kernel {k} stride {s}: "
+                                 f"expected at least {k}x{k} pixels at that layer")
+        self.conv = nn.Sequential(*layers[:-1])  # soft-argmax follows the last conv directly
+        self.softargmax = SpatialSoftArgmax()
+        self.in_shape = tuple(in_shape)
+        self.out_dim = 2 * channels[-1]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if tuple(x.shape[1:]) != self.in_shape:
+            raise ValueError(f"image of shape {tuple(x.shape[1:])} does not fit an encoder built for {self.in_shape}")
+        x = x.float() / 255.0 if x.dtype == torch.uint8 else x.float()  # camera pixels arrive as uint8
+        return self.softargmax(self.conv(x))
+
+
+class VectorEncoder(nn.Module):
+    """Identity (TacSL's `{}` preprocessor) or a small ELU MLP for vector observations."""
+
+    def __init__(self, in_dim: int, hidden: tuple = ()):
+        super().__init__()
+        layers, d = [], in_dim
+        for h in hidden:
+            layers += [nn.Linear(d, h), nn.ELU()]
+            d = h
+        self.net = nn.Sequential(*layers)
+        self.out_dim = d
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x.float())

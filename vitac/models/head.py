@@ -1,0 +1,82 @@
+"""Recurrent actor-critic head: 2-layer LSTM -> ELU MLP -> Gaussian mean, clamped log-std, value."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+def mlp(in_dim: int, units, activation=nn.ELU) -> tuple[nn.Sequential, int]:
+    layers, d = [], in_dim
+    for u in units:
+        layers += [nn.Linear(d, u), activation()]
+        d = u
+    return nn.Sequential(*layers), d
+
+
+class RecurrentActorHead(nn.Module):
+    """LSTM (hidden, layers) -> MLP -> mean, log-std (clamped to [log_std_min, log_std_max]) and value.
+
+    The recurrent state (h, c), each (layers, B, hidden), is passed in and out; it is zeroed at every
+    step whose `episode_start` flag is set, before that step's input is consumed.
+
+    Args:
+        in_dim: size of the fused feature vector.
+        action_dim: action size (6).
+        hidden, layers: LSTM size.
+        units: MLP widths.
+        log_std_min, log_std_max: clamp of the state-dependent log standard deviation.
+        log_std_init: bias of the log-std layer at initialisation (TacSL's 0).
+    """
+
+    def __init__(self, in_dim: int, action_dim: int = 6, hidden: int = 256, layers: int = 2,
+                 units=(256, 128, 64), log_std_min: float = -5.0, log_std_max: float = 1.0,
+                 log_std_init: float = 0.0):
+        super().__init__()
+        if log_std_min >= log_std_max:
+            raise ValueError(f"head.log_std_min={log_std_min!r} is not allowed: expected less than "
+                             f"head.log_std_max={log_std_max!r}")
+        self.lstm = nn.LSTM(in_dim, hidden, num_layers=layers)
+        self.mlp, d = mlp(hidden, units)
+        self.mean = nn.Linear(d, action_dim)
+        self.log_std = nn.Linear(d, action_dim)
+        self.value = nn.Linear(d, 1)
+        self.hidden, self.layers = hidden, layers
+        self.log_std_min, self.log_std_max = log_std_min, log_std_max
+        for name, p in self.lstm.named_parameters():  # cleanrl's LSTM init
+            if "bias" in name:
+                nn.init.constant_(p, 0.0)
+            else:
+                nn.init.orthogonal_(p, 1.0)
+        nn.init.orthogonal_(self.mean.weight, 0.01)
+        nn.init.zeros_(self.mean.bias)
+        nn.init.zeros_(self.log_std.weight)
+        nn.init.constant_(self.log_std.bias, log_std_init)
+
+    def initial_state(self, batch: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
+        zeros = torch.zeros(self.layers, batch, self.hidden, device=device)
+        return zeros, zeros.clone()
+
+    def forward(self, features: torch.Tensor, state, episode_starts: torch.Tensor):
+        """features (T, B, F), episode_starts (T, B) -> mean, log_std (T, B, A), value (T, B), state."""
+        h, c = state
+        outputs = []
+        for t in range(features.shape[0]):
+            keep = (1.0 - episode_starts[t].float()).view(1, -1, 1)
+            out, (h, c) = self.lstm(features[t : t + 1], (h * keep, c * keep))
+            outputs.append(out)
+        x = self.mlp(torch.cat(outputs, dim=0))
+        log_std = self.log_std(x).clamp(self.log_std_min, self.log_std_max)
+        return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
+
+
+class StateCritic(nn.Module):
+    """Asymmetric critic: an ELU MLP on the privileged critic state (fully observed, so no memory needed)."""
+
+    def __init__(self, in_dim: int, units=(256, 128, 64)):
+        super().__init__()
+        self.mlp, d = mlp(in_dim, units)
+        self.value = nn.Linear(d, 1)
+
+    def forward(self, critic_state: torch.Tensor) -> torch.Tensor:
+        return self.value(self.mlp(critic_state)).squeeze(-1)

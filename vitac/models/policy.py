@@ -1,0 +1,103 @@
+"""Policy assembly: per-modality encoders -> fusion -> recurrent head, plus an optional asymmetric critic."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from torch import nn
+
+from vitac.models.normalizer import RunningNormalizer
+from vitac.models.symmetry import SymmetryRegularizer
+
+IMAGE_ROLES = {"wrist": "vision", "tactile_left": "left", "tactile_right": "right"}
+VECTOR_KEYS = ("proprio", "peg_state", "contact_forces")
+
+
+class VisuoTactilePolicy(nn.Module):
+    """Gaussian recurrent actor-critic over a dict of observations.
+
+    Args:
+        obs_shapes: shape of each observation the actor reads (keys of IMAGE_ROLES and VECTOR_KEYS).
+        image_encoder: builds an encoder from an image shape (C, H, W); exposes `out_dim`.
+        vector_encoder: builds an encoder from a vector size.
+        fusion: builds the fusion module from (embed_dim, num_inputs); exposes `out_dim`, `requires`.
+        head: builds the recurrent head from the feature size.
+        regularizer: the symmetry prior (lambda_sym 0 turns it off).
+        critic: builds the asymmetric critic from the critic-state size, or None to use the head's value.
+        critic_state_dim: size of the critic state when `critic` is given.
+    """
+
+    def __init__(self, obs_shapes: dict, image_encoder: Callable, vector_encoder: Callable, fusion: Callable,
+                 head: Callable, regularizer: SymmetryRegularizer, critic: Callable | None = None,
+                 critic_state_dim: int | None = None):
+        super().__init__()
+        unknown = sorted(set(obs_shapes) - set(IMAGE_ROLES) - set(VECTOR_KEYS))
+        if unknown:
+            raise ValueError(f"obs.keys={sorted(obs_shapes)} is not allowed: {unknown} are not actor observations; "
+                             f"expected keys from {sorted(IMAGE_ROLES) + list(VECTOR_KEYS)}")
+        self.image_keys = [k for k in IMAGE_ROLES if k in obs_shapes]
+        self.vector_keys = [k for k in VECTOR_KEYS if k in obs_shapes]
+        self.encoders = nn.ModuleDict({k: image_encoder(in_shape=tuple(obs_shapes[k])) for k in self.image_keys})
+        self.vector_encoders = nn.ModuleDict({k: vector_encoder(in_dim=int(obs_shapes[k][0])) for k in self.vector_keys})
+        self.normalizers = nn.ModuleDict({k: RunningNormalizer(tuple(obs_shapes[k])) for k in self.vector_keys})
+        features = 0
+        self.fusion = None
+        if self.image_keys:
+            embed = {self.encoders[k].out_dim for k in self.image_keys}
+            if len(embed) != 1:
+                raise ValueError(f"image encoders disagree on embedding size: {embed}")
+            self.fusion = fusion(embed_dim=embed.pop(), num_inputs=len(self.image_keys))
+            missing = [k for k in self.fusion.requires if k not in self.image_keys]
+            if missing:
+                raise ValueError(f"fusion={type(self.fusion).__name__} needs observations {list(self.fusion.requires)}; "
+                                 f"obs lacks {missing}: use fusion=naive or an obs with wrist and tactile")
+            features += self.fusion.out_dim
+        features += sum(self.vector_encoders[k].out_dim for k in self.vector_keys)
+        self.head = head(in_dim=features)
+        self.regularizer = regularizer
+        self.uses_symmetry = regularizer.active and {"tactile_left", "tactile_right"} <= set(self.image_keys)
+        self.critic = None
+        if critic is not None:
+            self.critic = critic(in_dim=critic_state_dim)
+            self.critic_normalizer = RunningNormalizer((critic_state_dim,))
+        self.feature_dim = features
+
+    def initial_state(self, batch: int, device=None):
+        return self.head.initial_state(batch, device)
+
+    @torch.no_grad()
+    def update_normalizers(self, obs: dict) -> None:
+        for k in self.vector_keys:
+            self.normalizers[k].update(obs[k])
+        if self.critic is not None:
+            self.critic_normalizer.update(obs["critic_state"])
+
+    def _features(self, obs: dict, lead: tuple):
+        """Encode (T*B)-flattened observations; returns features (T, B, F) and the image embeddings."""
+        flat = lambda x: x.reshape(-1, *x.shape[len(lead):])  # noqa: E731
+        embeddings = {IMAGE_ROLES[k]: self.encoders[k](flat(obs[k])) for k in self.image_keys}
+        parts = [self.fusion(**embeddings)] if self.fusion is not None else []
+        for k in self.vector_keys:
+            parts.append(self.vector_encoders[k](self.normalizers[k](flat(obs[k]).float())))
+        return torch.cat(parts, dim=-1).reshape(*lead, -1), embeddings
+
+    def forward(self, obs: dict, state, episode_starts: torch.Tensor, with_aux: bool = False):
+        """obs values (T, B, ...), episode_starts (T, B).
+
+        Returns mean, log_std (T, B, A), value (T, B), next state and, with `with_aux`, the symmetry
+        loss per sample (T*B,) or None.
+        """
+        lead = tuple(episode_starts.shape)
+        features, embeddings = self._features(obs, lead)
+        mean, log_std, value, state = self.head(features, state, episode_starts)
+        if self.critic is not None:
+            critic_state = obs["critic_state"].reshape(-1, obs["critic_state"].shape[-1]).float()
+            value = self.critic(self.critic_normalizer(critic_state)).reshape(lead)
+        if not with_aux:
+            return mean, log_std, value, state
+        sym = None
+        if self.uses_symmetry:
+            right = obs["tactile_right"].reshape(-1, *obs["tactile_right"].shape[len(lead):])
+            sym = self.regularizer.per_sample(embeddings["left"], self.encoders["tactile_right"], right)
+        return mean, log_std, value, state, sym
