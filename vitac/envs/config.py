@@ -177,3 +177,10 @@ class InsertionConfig:
             props.RECT_HOLE_WIDTH[self.peg_size] - props.RECT_PEG_SIZE[self.peg_size][0])
         # TacSL does not give the rectangular hole's second dimension: use the same clearance.
         return peg.half_x + 0.5 * width_clearance, peg.half_y + 0.5 * width_clearance
+
+
+def observation_shapes(config: InsertionConfig) -> dict[str, tuple]:
+    """Shape of every observation the task can produce, known without building the simulation."""
+    tactile = (3, config.taxel_rows, config.taxel_cols)
+    return dict(proprio=(16,), peg_state=(7,), contact_forces=(9,), critic_state=(38,),
+                wrist=(3, config.camera_size, config.camera_size), tactile_left=tactile, tactile_right=tactile)

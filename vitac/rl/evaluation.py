@@ -1,0 +1,52 @@
+"""Run a policy on seeded episodes and summarise success and steps to succeed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+
+@torch.no_grad()
+def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = True) -> dict:
+    """Run `episodes` episodes (a multiple of envs.num_envs) with the mean action; returns per-episode results."""
+    policy.eval()
+    n = envs.num_envs
+    results = []
+    rounds = math.ceil(episodes / n)
+    for r in range(rounds):
+        obs, _ = envs.reset(seed=seed + r * n)
+        state, starts = policy.initial_state(n), torch.ones(n)
+        done = np.zeros(n, dtype=bool)
+        while not done.all():
+            obs_t = {k: torch.as_tensor(v)[None] for k, v in obs.items()}
+            mean, log_std, _, state = policy(obs_t, state, starts[None])
+            action = mean[0] if deterministic else mean[0] + log_std[0].exp() * torch.randn_like(mean[0])
+            obs, _, terminated, truncated, info = envs.step(action.clamp(-1, 1).numpy())
+            starts = torch.zeros(n)
+            for i in np.flatnonzero((terminated | truncated) & ~done):
+                env_info = info["env_infos"][i]
+                results.append(dict(success=bool(env_info["success"]), steps_to_success=int(env_info["steps_to_success"]),
+                                    keypoint_distance=float(env_info["keypoint_distance"])))
+            done |= terminated | truncated
+    return summarize(results[:episodes])
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95% Wilson score interval of a success rate."""
+    if n == 0:
+        return float("nan"), float("nan")
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return centre - half, centre + half
+
+
+def summarize(results: list[dict]) -> dict:
+    successes = sum(r["success"] for r in results)
+    steps = [r["steps_to_success"] for r in results if r["success"] and r["steps_to_success"] >= 0]
+    low, high = wilson_interval(successes, len(results))
+    return dict(episodes=len(results), success_rate=successes / max(len(results), 1), success_ci95=[low, high],
+                steps_to_success_mean=float(np.mean(steps)) if steps else float("nan"),
+                steps_to_success=steps, episodes_detail=results)

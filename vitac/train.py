@@ -1,0 +1,131 @@
+"""Train a visuo-tactile insertion policy with recurrent PPO: `python -m vitac.train [overrides]`."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import hydra
+import lightning as L
+import torch
+from hydra.core.hydra_config import HydraConfig
+from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.loggers import CSVLogger, WandbLogger
+from omegaconf import DictConfig, OmegaConf
+
+from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.envs.vector_env import InsertionVectorEnv
+from vitac.models.build import build_policy
+from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
+from vitac.rl.ppo import PPO
+
+log = logging.getLogger(__name__)
+
+
+def env_settings(cfg: DictConfig) -> dict:
+    """The task's keys with the observations the actor and critic read."""
+    settings = OmegaConf.to_container(cfg.env, resolve=True)
+    keys = list(cfg.obs.modalities)
+    if uses_critic(cfg):
+        keys.append("critic_state")
+    settings["observations"] = keys
+    return settings
+
+
+def uses_critic(cfg: DictConfig) -> bool:
+    return cfg.critic is not None and cfg.critic.get("_target_") is not None
+
+
+def build_policy_from_config(cfg: DictConfig, env_config: InsertionConfig):
+    shapes = observation_shapes(env_config)
+    return build_policy(cfg.encoder, cfg.fusion, cfg.head, cfg.reg, cfg.critic,
+                        {k: shapes[k] for k in cfg.obs.modalities}, critic_state_dim=shapes["critic_state"][0])
+
+
+def output_dir(cfg: DictConfig) -> Path:
+    if cfg.get("output_dir"):
+        return Path(cfg.output_dir)
+    return Path(HydraConfig.get().runtime.output_dir)
+
+
+def train(cfg: DictConfig) -> dict:
+    """Validate, seed, build env and policy, run PPO; returns the last metrics and the output paths."""
+    out = output_dir(cfg)
+    # Everything that can be checked without simulating is checked first.
+    settings = env_settings(cfg)
+    env_config = InsertionConfig.from_dict(settings)
+    policy = build_policy_from_config(cfg, env_config)
+    log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
+             sum(p.numel() for p in policy.parameters()))
+    if cfg.seed is not None:
+        L.seed_everything(cfg.seed, workers=True)
+    torch.set_num_threads(cfg.trainer.torch_threads)
+    algo = OmegaConf.to_container(cfg.algo, resolve=True)
+    num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
+    iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
+    save_every = algo.pop("save_every")
+    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0)
+    log.info("env: %d envs in %d workers, observations %s", num_envs, num_workers, settings["observations"])
+    module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0, **algo)
+    if cfg.critic_ckpt:
+        load_critic(module, cfg.critic_ckpt)
+    checkpoints = ModelCheckpoint(dirpath=out / "checkpoints", filename="iter{epoch:04d}", save_last=True,
+                                  every_n_epochs=save_every, save_top_k=0)
+    best = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
+                           save_top_k=1, auto_insert_metric_name=False)
+    evaluation = EvaluationCallback(lambda: InsertionVectorEnv(settings, num_envs=min(num_envs, eval_episodes),
+                                                               num_workers=0, seed=1_000_000),
+                                    every=eval_every, episodes=eval_episodes)
+    loggers = [CSVLogger(out, name="csv", version="")]
+    if cfg.logger.wandb:
+        loggers.append(WandbLogger(save_dir=str(out), offline=True, project=cfg.logger.project,
+                                   name=cfg.logger.get("name"), config=OmegaConf.to_container(cfg, resolve=True)))
+    trainer = L.Trainer(max_epochs=iterations, accelerator="cpu", devices=1, logger=loggers,
+                        callbacks=[checkpoints, best, evaluation, IterationProgressBar()], enable_progress_bar=False,
+                        enable_model_summary=False, log_every_n_steps=1, num_sanity_val_steps=0,
+                        deterministic=cfg.trainer.deterministic)
+    ckpt_path = None
+    if cfg.resume:
+        ckpt_path = Path(cfg.resume) / "checkpoints" / "last.ckpt"
+        if not ckpt_path.is_file():
+            raise FileNotFoundError(f"resume={cfg.resume!r}: no checkpoint at {ckpt_path}")
+    OmegaConf.save(cfg, out / "config.yaml", resolve=True)
+    try:
+        trainer.fit(module, ckpt_path=str(ckpt_path) if ckpt_path else None)
+    finally:
+        envs.close()
+    metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+    result = dict(metrics=metrics, checkpoint=str(out / "checkpoints" / "last.ckpt"),
+                  metrics_csv=str(out / "csv" / "metrics.csv"),
+                  wandb=str(out / "wandb") if cfg.logger.wandb else None, preset=cfg.preset.name)
+    print(f"\nvitac: preset={cfg.preset.name}, {module.env_steps} env steps, "
+          f"success (train episodes) {metrics.get('charts/success_rate', float('nan')):.3f}, "
+          f"eval {metrics.get('eval/success_rate', float('nan')):.3f}")
+    print(f"  checkpoint: {result['checkpoint']}\n  metrics:    {result['metrics_csv']}")
+    if result["wandb"]:
+        print(f"  wandb:      {result['wandb']}  (offline; `wandb sync {out}/wandb/offline-run-*` to upload)")
+    return result
+
+
+def load_critic(module: PPO, path: str) -> None:
+    """TacSL's AACD: start the asymmetric critic (and its input normalizer) from another run's checkpoint."""
+    if module.policy.critic is None:
+        raise ValueError(f"critic_ckpt={path!r} needs an asymmetric critic: set critic=state")
+    state = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+    prefixes = ("policy.critic.", "policy.critic_normalizer.", "value_normalizer.")
+    picked = {k: v for k, v in state.items() if k.startswith(prefixes)}
+    if not picked:
+        raise ValueError(f"critic_ckpt={path!r} holds no critic weights")
+    missing = module.load_state_dict(picked, strict=False)
+    log.info("critic loaded from %s (%d tensors, %d other keys untouched)", path, len(picked),
+             len(missing.missing_keys))
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+def main(cfg: DictConfig) -> float:
+    result = train(cfg)
+    return result["metrics"].get("eval/success_rate", float("nan"))
+
+
+if __name__ == "__main__":
+    main()
