@@ -59,14 +59,14 @@ def train(cfg: DictConfig) -> dict:
              sum(p.numel() for p in policy.parameters()))
     if cfg.seed is not None:
         L.seed_everything(cfg.seed, workers=True)
-    torch.set_num_threads(cfg.trainer.torch_threads)
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
     num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every = algo.pop("save_every")
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0)
     log.info("env: %d envs in %d workers, observations %s", num_envs, num_workers, settings["observations"])
-    module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0, **algo)
+    module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
+                 rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads, **algo)
     if cfg.critic_ckpt:
         load_critic(module, cfg.critic_ckpt)
     checkpoints = ModelCheckpoint(dirpath=out / "checkpoints", filename="iter{epoch:04d}", save_last=True,

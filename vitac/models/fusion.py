@@ -54,7 +54,8 @@ class CrossModalTransformer(nn.Module):
         if num_heads < 1 or embed_dim % num_heads:
             raise ValueError(f"fusion.num_heads={num_heads!r} is not allowed: expected a positive divisor of the "
                              f"embedding size {embed_dim}")
-        self.side = nn.Parameter(torch.zeros(2, embed_dim))  # tells the left token from the right one
+        # Learned side embeddings: attention alone is permutation-invariant over [h_L; h_R].
+        self.side = nn.Parameter(0.02 * torch.randn(2, embed_dim))
         self.self_attn = nn.MultiheadAttention(embed_dim, num_heads, dropout=dropout, batch_first=True)
         self.self_norm = nn.LayerNorm(embed_dim)
         self.cross_attn = nn.MultiheadAttention(embed_dim, num_heads, dropout=dropout, batch_first=True)

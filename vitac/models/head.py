@@ -60,10 +60,14 @@ class RecurrentActorHead(nn.Module):
     def forward(self, features: torch.Tensor, state, episode_starts: torch.Tensor):
         """features (T, B, F), episode_starts (T, B) -> mean, log_std (T, B, A), value (T, B), state."""
         h, c = state
+        # Run the LSTM over whole segments between the times at which any sequence starts an episode,
+        # masking the state only there (rl_games' RnnWithDones): one call instead of one per step.
+        starts = episode_starts.float()
+        cuts = [0] + [t for t in range(1, starts.shape[0]) if bool(starts[t].any())] + [starts.shape[0]]
         outputs = []
-        for t in range(features.shape[0]):
-            keep = (1.0 - episode_starts[t].float()).view(1, -1, 1)
-            out, (h, c) = self.lstm(features[t : t + 1], (h * keep, c * keep))
+        for begin, end in zip(cuts[:-1], cuts[1:], strict=True):
+            keep = (1.0 - starts[begin]).view(1, -1, 1)
+            out, (h, c) = self.lstm(features[begin:end], (h * keep, c * keep))
             outputs.append(out)
         x = self.mlp(torch.cat(outputs, dim=0))
         log_std = self.log_std(x).clamp(self.log_std_min, self.log_std_max)

@@ -39,6 +39,7 @@ class PPO(L.LightningModule):
             the paper's A2C table.
         normalize_input, normalize_value, normalize_advantage: running normalizations (advantages per minibatch).
         freeze_critic: keep the asymmetric critic fixed (AACD with a pre-trained critic).
+        rollout_threads, update_threads: torch threads while collecting and while updating.
     """
 
     def __init__(self, policy: VisuoTactilePolicy, envs, horizon: int = 512, seq_len: int = 128,
@@ -46,7 +47,7 @@ class PPO(L.LightningModule):
                  gae_lambda: float = 0.95, clip: float = 0.2, critic_coef: float = 2.0, clip_value: bool = True,
                  grad_norm: float = 1.0, entropy_coef: float = 0.0, bounds_loss_coef: float = 1e-4,
                  normalize_input: bool = True, normalize_value: bool = True, normalize_advantage: bool = True,
-                 freeze_critic: bool = False, seed: int = 0):
+                 freeze_critic: bool = False, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2):
         super().__init__()
         check_batch_layout(horizon, envs.num_envs, seq_len, minibatch_size)
         self.automatic_optimization = False
@@ -58,6 +59,7 @@ class PPO(L.LightningModule):
                        bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
         self.freeze_critic = freeze_critic
+        self.rollout_threads, self.update_threads = rollout_threads, update_threads
         if freeze_critic and policy.critic is not None:
             policy.critic.requires_grad_(False)
         self.buffer = RolloutBuffer(horizon, envs.num_envs, seq_len)
@@ -188,7 +190,9 @@ class PPO(L.LightningModule):
         hp = self.hp
         iteration_start = time.perf_counter()
         self.policy.eval()
+        torch.set_num_threads(self.rollout_threads)  # the env workers need the other cores while collecting
         metrics = self.collect_rollout()
+        torch.set_num_threads(self.update_threads)
         self.policy.train()
         if hp["normalize_value"]:
             self.value_normalizer.update(self.buffer.returns)
@@ -205,7 +209,7 @@ class PPO(L.LightningModule):
                 count += 1
                 for k in ("loss", "policy_loss", "value_loss", "entropy", "bounds_loss", "sym_loss", "approx_kl",
                           "clipfrac"):
-                    sums[k] = sums.get(k, 0.0) + float(terms[k])
+                    sums[k] = sums.get(k, 0.0) + float(terms[k].detach())
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
         if hp["normalize_input"]:  # after the update, so rollout and update saw the same statistics
             self.policy.update_normalizers({k: v.reshape(-1, *v.shape[2:]) for k, v in self.buffer.obs.items()})

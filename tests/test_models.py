@@ -1,0 +1,116 @@
+"""Model tier: the paper's architecture table, fusion contracts, the symmetry prior."""
+
+from __future__ import annotations
+
+import torch
+
+from tests.conftest import compose_config
+from vitac.envs.config import InsertionConfig
+from vitac.models.encoders import ConvSoftArgmaxEncoder, SpatialSoftArgmax
+from vitac.models.fusion import CrossModalTransformer, GatedFusion, NaiveFusion
+from vitac.models.head import RecurrentActorHead
+from vitac.models.symmetry import SymmetryRegularizer, flip_vertical
+from vitac.train import build_policy_from_config, env_settings
+
+
+def _intermediate_shapes(encoder, x):
+    shapes = []
+    for layer in encoder.conv:
+        x = layer(x)
+        if isinstance(layer, torch.nn.Conv2d):
+            shapes.append(tuple(x.shape))
+    return shapes
+
+
+def test_vision_encoder_matches_architecture_table():
+    enc = ConvSoftArgmaxEncoder((3, 64, 64))
+    shapes = _intermediate_shapes(enc, torch.zeros(5, 3, 64, 64))
+    assert shapes == [(5, 32, 29, 29), (5, 64, 26, 26), (5, 64, 24, 24)]
+    assert tuple(enc(torch.zeros(5, 3, 64, 64)).shape) == (5, 128)
+
+
+def test_tactile_encoder_matches_architecture_table():
+    enc = ConvSoftArgmaxEncoder((3, 32, 32))
+    shapes = _intermediate_shapes(enc, torch.zeros(5, 3, 32, 32))
+    assert shapes == [(5, 32, 13, 13), (5, 64, 10, 10), (5, 64, 8, 8)]
+    assert tuple(enc(torch.zeros(5, 3, 32, 32)).shape) == (5, 128)
+
+
+def test_spatial_softargmax_finds_the_peak():
+    x = torch.full((1, 1, 9, 9), -50.0)
+    x[0, 0, 2, 6] = 50.0  # row 2 (y), column 6 (x)
+    out = SpatialSoftArgmax()(x)
+    expected_x, expected_y = -1 + 2 * 6 / 8, -1 + 2 * 2 / 8
+    assert torch.allclose(out, torch.tensor([[expected_x, expected_y]]), atol=1e-4)
+
+
+def test_fusion_output_sizes():
+    v, l, r = torch.randn(4, 128), torch.randn(4, 128), torch.randn(4, 128)
+    assert NaiveFusion(128, 3)(v, l, r).shape == (4, 384)
+    gated = GatedFusion(128)
+    assert gated(v, l, r).shape == (4, 128)
+    assert torch.allclose(gated.last_weights.sum(-1), torch.ones(4))
+    assert CrossModalTransformer(128, num_heads=4)(v, l, r).shape == (4, 256)
+
+
+def test_gated_fusion_is_a_convex_combination():
+    gated = GatedFusion(8)
+    v, l, r = torch.ones(2, 8), 2 * torch.ones(2, 8), 3 * torch.ones(2, 8)
+    out = gated(v, l, r)
+    w = gated.last_weights
+    assert torch.allclose(out, (w[:, 0:1] * 1 + w[:, 1:2] * 2 + w[:, 2:3] * 3).expand(-1, 8))
+
+
+def test_cmt_vision_attends_to_tactile():
+    torch.manual_seed(0)
+    cmt = CrossModalTransformer(16, num_heads=2)
+    v, l, r = torch.randn(1, 16), torch.randn(1, 16), torch.randn(1, 16)
+    base = cmt(v, l, r)
+    assert not torch.allclose(base, cmt(v, l + 1.0, r)), "tactile keys/values must influence the output"
+    assert not torch.allclose(cmt(v, l, r), cmt(v, r, l)), "left and right tokens must be distinguishable"
+
+
+def test_symmetry_loss_is_zero_for_a_mirrored_pair_and_positive_otherwise():
+    torch.manual_seed(0)
+    enc = ConvSoftArgmaxEncoder((3, 32, 32))
+    left = torch.rand(3, 3, 32, 32)
+    right = flip_vertical(left)  # the right pad sees the left map with rows reversed
+    per_sample = SymmetryRegularizer.per_sample(enc(left), enc, right)
+    assert torch.allclose(per_sample, torch.zeros(3), atol=1e-10)
+    assert (SymmetryRegularizer.per_sample(enc(left), enc, left.flip(-1)) > 0).all()
+
+
+def test_log_std_is_clamped():
+    head = RecurrentActorHead(4, log_std_min=-2.0, log_std_max=0.5)
+    with torch.no_grad():
+        head.log_std.bias.fill_(10.0)
+    _, log_std, _, _ = head(torch.zeros(2, 1, 4), head.initial_state(1), torch.zeros(2, 1))
+    assert torch.all(log_std == 0.5)
+
+
+def _policy(reg):
+    cfg = compose_config(["obs=wrist_tactile", "fusion=cmt", f"reg={reg}"])
+    return build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+
+
+def _batch(T=2, B=2):
+    return {"proprio": torch.randn(T, B, 16), "wrist": torch.randint(0, 255, (T, B, 3, 64, 64), dtype=torch.uint8),
+            "tactile_left": torch.rand(T, B, 3, 32, 32), "tactile_right": torch.rand(T, B, 3, 32, 32),
+            "critic_state": torch.randn(T, B, 38)}
+
+
+def test_symmetry_term_sends_gradient_to_the_tactile_encoders():
+    torch.manual_seed(0)
+    policy = _policy("sym")
+    *_, sym = policy(_batch(), policy.initial_state(2), torch.zeros(2, 2), with_aux=True)
+    sym.mean().backward()
+    for key in ("tactile_left", "tactile_right"):
+        grad = policy.encoders[key].conv[0].weight.grad
+        assert grad is not None and grad.abs().sum() > 0
+    assert policy.encoders["wrist"].conv[0].weight.grad is None
+
+
+def test_no_symmetry_term_without_the_regularizer():
+    policy = _policy("none")
+    *_, sym = policy(_batch(), policy.initial_state(2), torch.zeros(2, 2), with_aux=True)
+    assert sym is None and not policy.uses_symmetry

@@ -1,0 +1,89 @@
+"""Math tier: GAE with termination vs truncation, and each PPO loss term against hand-worked values."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from vitac.rl import losses
+
+
+def _gae(rewards, values, next_values, ends, gamma=0.9, lam=0.5):
+    t = lambda x: torch.tensor(x, dtype=torch.float32)[:, None]  # noqa: E731
+    adv, ret = losses.gae(t(rewards), t(values), t(next_values), t(ends), gamma, lam)
+    return adv[:, 0].tolist(), ret[:, 0].tolist()
+
+
+def test_gae_mid_episode_hand_worked():
+    # Two mid-episode steps, bootstrapping from V(s_2) = 3 after the rollout.
+    adv, ret = _gae([1.0, 2.0], [0.5, 1.0], [1.0, 3.0], [0, 0])
+    d1 = 2.0 + 0.9 * 3.0 - 1.0  # 3.7
+    d0 = 1.0 + 0.9 * 1.0 - 0.5  # 1.4
+    assert adv == pytest.approx([d0 + 0.9 * 0.5 * d1, d1])
+    assert ret == pytest.approx([d0 + 0.45 * d1 + 0.5, d1 + 1.0])
+
+
+def test_gae_termination_does_not_bootstrap():
+    adv, _ = _gae([1.0, 2.0], [0.5, 1.0], [1.0, 0.0], [0, 1])
+    assert adv[1] == pytest.approx(2.0 - 1.0)
+
+
+def test_gae_truncation_bootstraps_from_the_final_observation():
+    # Episode truncated at t=1 with V(final obs) = 4; the next episode's first value (7) must not leak.
+    adv, _ = _gae([1.0, 2.0, 0.0], [0.5, 1.0, 7.0], [1.0, 4.0, 0.0], [0, 1, 1])
+    assert adv[1] == pytest.approx(2.0 + 0.9 * 4.0 - 1.0)
+    assert adv[0] == pytest.approx((1.0 + 0.9 * 1.0 - 0.5) + 0.45 * adv[1])
+
+
+def test_gae_next_episode_never_leaks_into_previous_target():
+    base, _ = _gae([1.0, 2.0, 5.0], [0.5, 1.0, 7.0], [1.0, 4.0, 2.0], [0, 1, 0])
+    changed, _ = _gae([1.0, 2.0, -50.0], [0.5, 1.0, 70.0], [1.0, 4.0, 9.0], [0, 1, 0])
+    assert base[:2] == pytest.approx(changed[:2])
+
+
+def test_policy_loss_hand_worked():
+    new = torch.log(torch.tensor([1.5, 0.5, 1.1]))
+    old = torch.zeros(3)
+    adv = torch.tensor([1.0, 1.0, -2.0])
+    loss, kl, clipfrac = losses.policy_loss(new, old, adv, clip=0.2)
+    # per sample max(-A r, -A clip(r)): [-1.2, -0.5, 2.2]
+    assert float(loss) == pytest.approx((-1.2 - 0.5 + 2.2) / 3, rel=1e-5)
+    assert float(clipfrac) == pytest.approx(2 / 3)
+    expected_kl = sum((r - 1) - math.log(r) for r in (1.5, 0.5, 1.1)) / 3
+    assert float(kl) == pytest.approx(expected_kl, rel=1e-5)
+
+
+@pytest.mark.parametrize("new,old,ret,expected", [
+    (1.1, 1.0, 2.0, 0.81),  # inside the clip range: the unclipped loss
+    (3.0, 1.0, 2.0, 1.0),  # clipped value 1.2 -> 0.64 smaller: max picks unclipped 1.0
+    (0.0, 1.0, -1.0, 3.24),  # clipped value 0.8 -> (1.8)^2 = 3.24 larger than 1.0
+])
+def test_value_loss_clipping_cases(new, old, ret, expected):
+    t = lambda x: torch.tensor([x])  # noqa: E731
+    assert float(losses.value_loss(t(new), t(old), t(ret), clip=0.2)) == pytest.approx(expected, rel=1e-5)
+
+
+def test_bounds_loss_zero_inside_positive_outside_with_inward_gradient():
+    inside = torch.tensor([[0.5, -1.1, 1.0]])
+    assert float(losses.bounds_loss(inside)) == 0.0
+    mu = torch.tensor([[1.5, -2.0, 0.0]], requires_grad=True)
+    loss = losses.bounds_loss(mu)
+    assert float(loss) == pytest.approx(0.4**2 + 0.9**2, rel=1e-5)
+    loss.backward()
+    assert mu.grad[0, 0] > 0 and mu.grad[0, 1] < 0 and mu.grad[0, 2] == 0  # descent moves mu inward
+
+
+def test_gaussian_log_prob_matches_torch_distribution():
+    mean, log_std, x = torch.randn(5, 6), torch.randn(5, 6) * 0.3, torch.randn(5, 6) * 3
+    ref = torch.distributions.Normal(mean, log_std.exp()).log_prob(x).sum(-1)
+    assert torch.allclose(losses.gaussian_log_prob(x, mean, log_std), ref, atol=1e-5)
+    assert torch.allclose(losses.gaussian_entropy(log_std),
+                          torch.distributions.Normal(mean, log_std.exp()).entropy().sum(-1), atol=1e-5)
+
+
+def test_advantage_normalization_and_single_element_guard():
+    adv = losses.normalize_advantages(torch.tensor([1.0, 2.0, 3.0, 10.0]))
+    assert float(adv.mean()) == pytest.approx(0.0, abs=1e-6) and float(adv.std()) == pytest.approx(1.0, rel=1e-4)
+    assert torch.equal(losses.normalize_advantages(torch.tensor([5.0])), torch.tensor([5.0]))
