@@ -55,9 +55,12 @@ class InsertionEnv(gym.Env):
         super().reset(seed=seed)
         if seed is not None:
             self._env.random_state.seed(seed)
-        timestep = self._env.reset()
+        self._env.reset()
         self._needs_reset = False
-        return dict(timestep.observation), self._info()
+        # dm_control's reset ends with a forward pass with actuation disabled, so composer's first
+        # observation misses the grip force; recompute it with the actuators on.
+        self._env.physics.forward()
+        return self.observation(), self._info()
 
     def step(self, action):
         if self._needs_reset:
@@ -96,8 +99,8 @@ class InsertionEnv(gym.Env):
         self._env._reset_next_step = state["composer_reset_next"]
 
     def observation(self) -> dict:
-        """The current observation, recomputed from physics (used after set_state)."""
-        return {k: np.asarray(v) for k, v in self._env._observation_updater.get_observation().items()}
+        """The current observation, recomputed from physics."""
+        return self._env.task.observe(self._env.physics)
 
     def close(self):
         self._env.task.close()

@@ -15,7 +15,7 @@ from vitac.sensors.tactile import TactileFieldSensor
 
 _DOWN = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])  # hand frame pointing down: Rx(pi)
 PAD_TIMECONST = 0.01  # pad contact time constant (s) at the nominal stiffness 250
-SETTLE_SUBSTEPS = 30  # TacSL closes the gripper for 30 sim steps with gravity off
+SETTLE_SECONDS = 0.25  # TacSL closes the gripper for 30 sim steps of 1/120 s with gravity off
 
 
 class Arena(composer.Arena):
@@ -190,7 +190,7 @@ class InsertionTask(composer.Task):
         gravity = physics.model.opt.gravity.copy()
         physics.model.opt.gravity[:] = 0.0
         mujoco.mj_forward(m, d)
-        for _ in range(SETTLE_SUBSTEPS):
+        for _ in range(int(round(SETTLE_SECONDS / physics.model.opt.timestep))):
             mujoco.mj_step(m, d)
         physics.model.opt.gravity[:] = gravity
         mujoco.mj_forward(m, d)
@@ -352,6 +352,10 @@ class InsertionTask(composer.Task):
             self.socket_pos(physics), [1.0, 0, 0, 0], d.qpos[ids["finger_qpos"]], lin, ang,
             self.contact_forces(physics)]).astype(np.float32)
 
+    def observe(self, physics) -> dict:
+        """The enabled observations computed now from physics (with actuation, unlike composer's reset)."""
+        return {name: np.asarray(self._sources[name](physics)) for name in self.config.observations}
+
     def _build_observables(self):
         sources = dict(
             proprio=self.proprio, peg_state=self.peg_state, contact_forces=self.contact_forces,
@@ -360,6 +364,7 @@ class InsertionTask(composer.Task):
             tactile_left=lambda physics: self.tactile_field(physics, 0),
             tactile_right=lambda physics: self.tactile_field(physics, 1),
         )
+        self._sources = sources
         self._observables = {}
         for name, fn in sources.items():
             obs = observable.Generic(fn)

@@ -1,0 +1,155 @@
+"""Environment tier: the composer task, its gymnasium adapters, the oracle and the sensors in simulation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vitac.envs.config import InsertionConfig
+from vitac.envs.gym_env import InsertionEnv
+from vitac.envs.oracle import OracleController
+from vitac.envs.vector_env import InsertionVectorEnv
+
+ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = InsertionEnv({"observations": ALL}, seed=0)
+    yield e
+    e.close()
+
+
+def test_observations_match_spaces(env):
+    obs, info = env.reset(seed=1)
+    assert set(obs) == set(ALL)
+    for k, v in obs.items():
+        assert env.observation_space[k].contains(v), k
+    assert obs["wrist"].dtype == np.uint8 and obs["wrist"].shape == (3, 64, 64)
+    assert obs["tactile_left"].shape == (3, 32, 32)
+    assert obs["wrist"].std() > 5, "the wrist camera sees a scene, not a blank frame"
+
+
+def test_episode_ends_by_truncation_after_255_steps(env):
+    env.reset(seed=2)
+    for step in range(255):
+        _, reward, terminated, truncated, info = env.step(np.zeros(6))
+        assert np.isfinite(reward)
+        if step < 254:
+            assert not (terminated or truncated)
+    assert truncated and not terminated
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(6))
+
+
+def test_grasp_holds_and_residual_field_starts_near_zero(env):
+    obs, _ = env.reset(seed=3)
+    raw_left = env.task.raw_tactile(env.physics, 0)
+    assert raw_left[2].max() > 0, "the pads squeeze the peg at the start"
+    assert np.abs(obs["tactile_left"]).max() < 0.5 * raw_left[2].max()  # residual against f_ref (eq. 2)
+    forces = obs["contact_forces"].reshape(3, 3)
+    assert np.linalg.norm(forces[1]) > 0.5 and np.linalg.norm(forces[2]) > 0.5  # both pads push on the peg
+
+
+def test_centred_symmetric_squeeze_right_flipped_equals_left():
+    cfg = {"observations": ["proprio"], "randomization": {"enabled": True, "peg_in_hand_tilt": [0.0, 0.0],
+                                                          "ee_rot_low": [0, 0, 0], "ee_rot_high": [0, 0, 0]}}
+    e = InsertionEnv(cfg, seed=0)
+    e.reset(seed=4)
+    left, right = e.task.raw_tactile(e.physics, 0), e.task.raw_tactile(e.physics, 1)
+    e.close()
+    assert left[2].max() > 0
+    np.testing.assert_allclose(right[2][::-1], left[2], atol=0.05 * left[2].max())
+
+
+def test_same_seed_same_episode():
+    a, b = InsertionEnv({"observations": ["proprio"]}, seed=0), InsertionEnv({"observations": ["proprio"]}, seed=0)
+    oa, _ = a.reset(seed=11)
+    ob, _ = b.reset(seed=11)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        act = rng.uniform(-1, 1, 6)
+        oa, ra, *_ = a.step(act)
+        ob, rb, *_ = b.step(act)
+    np.testing.assert_array_equal(oa["proprio"], ob["proprio"])
+    assert ra == rb
+    a.close()
+    b.close()
+
+
+def test_state_round_trip_continues_exactly():
+    e = InsertionEnv({"observations": ["proprio", "tactile_left"]}, seed=0)
+    e.reset(seed=5)
+    for _ in range(10):
+        e.step(np.full(6, 0.3))
+    state = e.get_state()
+    ref = [e.step(np.full(6, -0.2))[0]["proprio"] for _ in range(5)]
+    e.set_state(state)
+    again = [e.step(np.full(6, -0.2))[0]["proprio"] for _ in range(5)]
+    e.close()
+    np.testing.assert_array_equal(np.array(ref), np.array(again))
+
+
+def test_oracle_inserts_and_random_policy_does_not():
+    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    oracle = OracleController(e.task)
+    rng = np.random.default_rng(0)
+    oracle_success, random_success = [], []
+    for ep in range(4):
+        e.reset(seed=100 + ep)
+        oracle.reset()
+        done = False
+        while not done:
+            _, _, te, tr, info = e.step(oracle(e.physics))
+            done = te or tr
+        oracle_success.append(info["success"])
+        assert info["steps_to_success"] > 0
+        e.reset(seed=100 + ep)
+        done = False
+        while not done:
+            _, _, te, tr, info = e.step(rng.uniform(-1, 1, 6))
+            done = te or tr
+        random_success.append(info["success"])
+    e.close()
+    assert all(oracle_success) and not any(random_success)
+
+
+def test_vector_env_workers_match_in_process_and_autoreset_same_step():
+    cfg = {"observations": ["proprio", "critic_state"], "episode_steps": 5}
+    actions = np.random.default_rng(0).uniform(-1, 1, (7, 4, 6))
+    outputs = []
+    for workers in (0, 2):
+        venv = InsertionVectorEnv(cfg, num_envs=4, num_workers=workers, seed=7)
+        obs, _ = venv.reset(seed=7)
+        trace = [obs["proprio"].copy()]
+        for t in range(7):
+            obs, reward, terminated, truncated, info = venv.step(actions[t])
+            trace.append(obs["proprio"].copy())
+            if t == 4:
+                assert truncated.all() and not terminated.any()
+                assert sorted(info["final_obs"]) == [0, 1, 2, 3]
+                assert not np.allclose(info["final_obs"][0]["proprio"], obs["proprio"][0])
+        venv.close()
+        outputs.append(np.array(trace))
+    np.testing.assert_array_equal(outputs[0], outputs[1])
+
+
+def test_env_refuses_bad_config_at_construction():
+    with pytest.raises(ValueError, match=r"env\.peg_shape='star'"):
+        InsertionEnv({"peg_shape": "star"})
+    with pytest.raises(ValueError, match=r"env\.randomization\.bogus"):
+        InsertionConfig.from_dict({"randomization": {"bogus": 1}})
+
+
+@pytest.mark.parametrize("shape,size", [("rectangular", 16), ("round", 8), ("round", 12)])
+def test_other_pegs_build_and_oracle_inserts(shape, size):
+    e = InsertionEnv({"observations": ["proprio"], "peg_shape": shape, "peg_size": size}, seed=0)
+    oracle = OracleController(e.task)
+    e.reset(seed=21)
+    oracle.reset()
+    done = False
+    while not done:
+        _, _, te, tr, info = e.step(oracle(e.physics))
+        done = te or tr
+    e.close()
+    assert info["success"], info

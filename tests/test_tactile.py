@@ -1,0 +1,75 @@
+"""Tactile force field: the penalty model on a taxel grid, alone and inside the simulated grasp."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vitac.sensors.tactile import PegGeometry, TactileFieldSensor
+
+PEG = PegGeometry("round", 0.008, 0.008, 0.05)
+PAD_ROT = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # pad x = world x, y = world z, z (out) = world -y
+
+
+def _sensor():
+    return TactileFieldSensor(32, 32, 0.024, 0.032, 0.0005, kn=1000.0, kt=100.0, mu=2.0)
+
+
+def _field(gap=-0.0005, peg_vel=(0, 0, 0), pad_vel=(0, 0, 0), peg_shift=(0, 0, 0)):
+    """Pad face at y = 0.008 + gap... facing -y, peg axis along world z centred at the origin."""
+    sensor = _sensor()
+    pad_pos = np.array([0.0, PEG.half_x + gap, 0.025])
+    peg_pos = np.array(peg_shift, float)
+    zero = np.zeros(3)
+    return sensor.field(PEG, pad_pos, PAD_ROT, np.array(pad_vel, float), zero, peg_pos, np.eye(3),
+                        np.array(peg_vel, float), zero)
+
+
+def test_no_contact_gives_zeros():
+    assert np.all(_field(gap=+0.001) == 0.0)
+
+
+def test_more_squeeze_gives_more_normal_force():
+    light, firm = _field(gap=-0.0002), _field(gap=-0.0008)
+    assert firm[2].sum() > light[2].sum() > 0
+    assert np.all(firm[2] >= 0)
+
+
+def test_sliding_peg_gives_shear_in_the_sliding_direction():
+    # The peg slides down (world -z) past the pad: the pad's y axis is world +z, so friction adds negative
+    # shear_y. (Channel 0 also carries the in-plane part of the curved surface's normal force, which is
+    # antisymmetric across the contact line and cancels in the sum.)
+    still, sliding = _field(), _field(peg_vel=(0, 0, -0.05))
+    touching = sliding[2] > 0
+    assert touching.any()
+    assert np.all((sliding[1] - still[1])[touching] < 0)
+    assert np.allclose(sliding[0], still[0])
+    assert abs(still[0].sum()) < 1e-9
+    # Sliding along world x (the pad's x) adds shear_x in that direction.
+    sliding_x = _field(peg_vel=(0.05, 0, 0))
+    assert np.all((sliding_x[0] - still[0])[touching] > 0)
+
+
+def test_shear_is_capped_by_coulomb_friction():
+    still, fast = _field(), _field(peg_vel=(0, 0, -100.0))
+    touching = still[2] > 0
+    normal_force = np.linalg.norm(still, axis=0)[touching]  # at rest the whole force is kn * depth
+    friction = np.linalg.norm(fast - still, axis=0)[touching]
+    np.testing.assert_allclose(friction, 2.0 * normal_force, rtol=1e-6)  # saturated at mu * fn
+
+
+def test_contact_line_lies_where_the_peg_touches():
+    field = _field()
+    rows, cols = np.nonzero(field[2] > 0)
+    # A 0.5 mm deep contact with an 8 mm cylinder is a band +-2.8 mm wide (+-3.8 rows of 0.74 mm) about the middle.
+    assert rows.min() + rows.max() == 31 and np.all(np.abs(rows - 15.5) <= 4)
+    assert cols.min() == 0 and cols.max() == 31  # along the whole pad length
+
+
+@pytest.mark.parametrize("shape", ["round", "rectangular"])
+def test_signed_distance_inside_outside(shape):
+    peg = PegGeometry(shape, 0.008, 0.005, 0.05)
+    points = np.array([[0.0, 0.0, 0.025], [0.02, 0.0, 0.025], [0.0, 0.0, -0.01]])
+    sdf, normal = peg.signed_distance(points)
+    assert sdf[0] < 0 and sdf[1] > 0 and sdf[2] > 0
+    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
