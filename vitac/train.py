@@ -51,26 +51,27 @@ def output_dir(cfg: DictConfig) -> Path:
 def train(cfg: DictConfig) -> dict:
     """Validate, seed, build env and policy, run PPO; returns the last metrics and the output paths."""
     out = output_dir(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    if cfg.seed is not None:  # before any weights are initialised
+        L.seed_everything(cfg.seed, workers=True)
     # Everything that can be checked without simulating is checked first.
     settings = env_settings(cfg)
     env_config = InsertionConfig.from_dict(settings)
     policy = build_policy_from_config(cfg, env_config)
     log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
              sum(p.numel() for p in policy.parameters()))
-    if cfg.seed is not None:
-        L.seed_everything(cfg.seed, workers=True)
+    ckpt_path = None
+    if cfg.resume:
+        ckpt_path = Path(cfg.resume) / "checkpoints" / "last.ckpt"
+        if not ckpt_path.is_file():
+            raise FileNotFoundError(f"resume={cfg.resume!r}: no checkpoint at {ckpt_path}")
+    OmegaConf.save(cfg, out / "config.yaml", resolve=True)
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
     num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every = algo.pop("save_every")
-    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0)
-    log.info("env: %d envs in %d workers, observations %s", num_envs, num_workers, settings["observations"])
-    module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
-                 rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads, **algo)
-    if cfg.critic_ckpt:
-        load_critic(module, cfg.critic_ckpt)
     checkpoints = ModelCheckpoint(dirpath=out / "checkpoints", filename="iter{epoch:04d}", save_last=True,
-                                  every_n_epochs=save_every, save_top_k=0)
+                                  every_n_epochs=save_every, save_top_k=-1)
     best = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
                            save_top_k=1, auto_insert_metric_name=False)
     evaluation = EvaluationCallback(lambda: InsertionVectorEnv(settings, num_envs=min(num_envs, eval_episodes),
@@ -84,14 +85,16 @@ def train(cfg: DictConfig) -> dict:
                         callbacks=[checkpoints, best, evaluation, IterationProgressBar()], enable_progress_bar=False,
                         enable_model_summary=False, log_every_n_steps=1, num_sanity_val_steps=0,
                         deterministic=cfg.trainer.deterministic)
-    ckpt_path = None
-    if cfg.resume:
-        ckpt_path = Path(cfg.resume) / "checkpoints" / "last.ckpt"
-        if not ckpt_path.is_file():
-            raise FileNotFoundError(f"resume={cfg.resume!r}: no checkpoint at {ckpt_path}")
-    OmegaConf.save(cfg, out / "config.yaml", resolve=True)
+    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0)
+    log.info("env: %d envs in %d workers, observations %s", num_envs, num_workers, settings["observations"])
     try:
-        trainer.fit(module, ckpt_path=str(ckpt_path) if ckpt_path else None)
+        module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
+                     rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads,
+                     run_config=OmegaConf.to_container(cfg, resolve=True), **algo)
+        if cfg.critic_ckpt:
+            load_critic(module, cfg.critic_ckpt)
+        # Our checkpoints carry environment and RNG states (numpy objects): they are our own files.
+        trainer.fit(module, ckpt_path=str(ckpt_path) if ckpt_path else None, weights_only=False)
     finally:
         envs.close()
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}

@@ -31,8 +31,10 @@ class EvaluationCallback(L.Callback):
             self.envs = self.make_envs()
         summary = run_episodes(module.policy, self.envs, self.episodes, self.seed)
         self.last = summary
-        module.log_dict({"eval/success_rate": summary["success_rate"],
-                         "eval/steps_to_success": summary["steps_to_success_mean"]}, on_epoch=True)
+        metrics = {"eval/success_rate": summary["success_rate"]}
+        if summary["steps_to_success_mean"] is not None:
+            metrics["eval/steps_to_success"] = summary["steps_to_success_mean"]
+        module.log_dict(metrics, on_epoch=True)
 
     def teardown(self, trainer, module, stage):
         if self.envs is not None:

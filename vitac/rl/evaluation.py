@@ -48,5 +48,5 @@ def summarize(results: list[dict]) -> dict:
     steps = [r["steps_to_success"] for r in results if r["success"] and r["steps_to_success"] >= 0]
     low, high = wilson_interval(successes, len(results))
     return dict(episodes=len(results), success_rate=successes / max(len(results), 1), success_ci95=[low, high],
-                steps_to_success_mean=float(np.mean(steps)) if steps else float("nan"),
+                steps_to_success_mean=float(np.mean(steps)) if steps else None,
                 steps_to_success=steps, episodes_detail=results)

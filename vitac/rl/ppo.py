@@ -40,6 +40,7 @@ class PPO(L.LightningModule):
         normalize_input, normalize_value, normalize_advantage: running normalizations (advantages per minibatch).
         freeze_critic: keep the asymmetric critic fixed (AACD with a pre-trained critic).
         rollout_threads, update_threads: torch threads while collecting and while updating.
+        run_config: the resolved run config, stored in checkpoints so evaluation can rebuild the policy.
     """
 
     def __init__(self, policy: VisuoTactilePolicy, envs, horizon: int = 512, seq_len: int = 128,
@@ -47,7 +48,8 @@ class PPO(L.LightningModule):
                  gae_lambda: float = 0.95, clip: float = 0.2, critic_coef: float = 2.0, clip_value: bool = True,
                  grad_norm: float = 1.0, entropy_coef: float = 0.0, bounds_loss_coef: float = 1e-4,
                  normalize_input: bool = True, normalize_value: bool = True, normalize_advantage: bool = True,
-                 freeze_critic: bool = False, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2):
+                 freeze_critic: bool = False, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
+                 run_config: dict | None = None):
         super().__init__()
         check_batch_layout(horizon, envs.num_envs, seq_len, minibatch_size)
         self.automatic_optimization = False
@@ -59,10 +61,13 @@ class PPO(L.LightningModule):
                        bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
         self.freeze_critic = freeze_critic
+        self.run_config = run_config
         self.rollout_threads, self.update_threads = rollout_threads, update_threads
         if freeze_critic and policy.critic is not None:
             policy.critic.requires_grad_(False)
         self.buffer = RolloutBuffer(horizon, envs.num_envs, seq_len)
+        # All of PPO's randomness (action noise, minibatch order) comes from this generator, saved in
+        # checkpoints: Lightning's dataloader draws from the global RNG, which would break exact resume.
         self.generator = torch.Generator().manual_seed(seed)
         self.env_steps = 0
         self._obs = None  # current observation (numpy dict), LSTM state and episode-start flags
@@ -86,8 +91,6 @@ class PPO(L.LightningModule):
             self._starts = r["starts"]
             self.env_steps = r["env_steps"]
             self.generator.set_state(r["generator"])
-            np.random.set_state(r["numpy_rng"])
-            torch.set_rng_state(r["torch_rng"])
             self._restored = None
         elif self._obs is None:
             self._obs, _ = self.envs.reset(seed=None)
@@ -95,9 +98,9 @@ class PPO(L.LightningModule):
             self._starts = torch.ones(n)
 
     def on_save_checkpoint(self, checkpoint):
+        checkpoint["vitac_config"] = self.run_config
         checkpoint["vitac"] = dict(env_states=self.envs.get_state(), lstm_state=self._state, starts=self._starts,
-                                   env_steps=self.env_steps, generator=self.generator.get_state(),
-                                   numpy_rng=np.random.get_state(), torch_rng=torch.get_rng_state())
+                                   env_steps=self.env_steps, generator=self.generator.get_state())
 
     def on_load_checkpoint(self, checkpoint):
         self._restored = checkpoint.get("vitac")
@@ -128,7 +131,7 @@ class PPO(L.LightningModule):
             mean, log_std, value, next_state = self.policy({k: v[None] for k, v in obs.items()}, self._state,
                                                            self._starts[None])
             mean, log_std, value = mean[0], log_std[0], value[0]
-            action = mean + log_std.exp() * torch.randn(mean.shape)
+            action = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
             for k, v in obs.items():
                 buf.obs[k][t] = v
             buf.actions[t], buf.starts[t] = action, self._starts

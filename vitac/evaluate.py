@@ -1,0 +1,67 @@
+"""Evaluate a checkpoint: `python -m vitac.evaluate ckpt=outputs/.../checkpoints/last.ckpt [episodes=100]`.
+
+Prints (and writes next to the checkpoint) a JSON report: success rate with its 95% Wilson interval
+and the steps-to-succeed distribution, on held-out seeded episodes with the deterministic policy.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from vitac.envs.config import InsertionConfig
+from vitac.envs.vector_env import InsertionVectorEnv
+from vitac.rl.evaluation import run_episodes
+from vitac.train import build_policy_from_config, env_settings
+
+log = logging.getLogger(__name__)
+
+
+def load_policy(ckpt: str | Path):
+    """Rebuild the policy from the resolved config stored in the checkpoint, then load its weights."""
+    path = Path(ckpt)
+    if not path.is_file():
+        raise FileNotFoundError(f"ckpt={str(ckpt)!r}: no such checkpoint file")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # a truncated or foreign file must not be half-read
+        raise ValueError(f"ckpt={str(ckpt)!r} is not a readable vitac checkpoint: {err}") from err
+    if "vitac_config" not in checkpoint or "state_dict" not in checkpoint:
+        raise ValueError(f"ckpt={str(ckpt)!r} is not a vitac checkpoint (no stored config or weights)")
+    cfg = OmegaConf.create(checkpoint["vitac_config"])
+    settings = env_settings(cfg)
+    policy = build_policy_from_config(cfg, InsertionConfig.from_dict(settings))
+    weights = {k[len("policy."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("policy.")}
+    policy.load_state_dict(weights)
+    return policy, cfg, settings
+
+
+def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None) -> dict:
+    policy, cfg, settings = load_policy(ckpt)
+    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed)
+    try:
+        summary = run_episodes(policy, envs, episodes, seed)
+    finally:
+        envs.close()
+    report = dict(ckpt=str(ckpt), preset=cfg.preset.name, obs=cfg.obs.name, seed=seed,
+                  **{k: v for k, v in summary.items() if k != "episodes_detail"})
+    target = Path(out) if out else Path(ckpt).with_suffix(".eval.json")
+    target.write_text(json.dumps(report, indent=2))
+    return report
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
+def main(cfg: DictConfig) -> None:
+    if not cfg.ckpt:
+        raise ValueError("ckpt=None is not allowed: pass ckpt=<run dir>/checkpoints/last.ckpt")
+    report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out)
+    print(json.dumps({k: v for k, v in report.items() if k != "steps_to_success"}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
