@@ -67,9 +67,11 @@ def test_contact_line_lies_where_the_peg_touches():
 
 
 @pytest.mark.parametrize("shape", ["round", "rectangular"])
-def test_signed_distance_inside_outside(shape):
+def test_penetration_depth_and_normal(shape):
     peg = PegGeometry(shape, 0.008, 0.005, 0.05)
-    points = np.array([[0.0, 0.0, 0.025], [0.02, 0.0, 0.025], [0.0, 0.0, -0.01]])
-    sdf, normal = peg.signed_distance(points)
-    assert sdf[0] < 0 and sdf[1] > 0 and sdf[2] > 0
-    assert np.allclose(np.linalg.norm(normal, axis=1), 1.0)
+    points = np.array([[0.0, 0.0, 0.025], [0.02, 0.0, 0.025], [0.0, 0.0, -0.01], [0.0075, 0.0, 0.02],
+                       [0.0, 0.0, 0.049]])
+    index, depth, normal = peg.penetration(points.T)
+    assert index.tolist() == [0, 3, 4]  # outside points are dropped
+    np.testing.assert_allclose(depth[1:], [0.0005, 0.001])
+    np.testing.assert_allclose(normal[1:], [[1, 0, 0], [0, 0, 1]])

@@ -54,8 +54,6 @@ class ParallelGripper(composer.Entity):
                     density=0)
         palm_z = -FINGER_LENGTH - 0.008
         self.hand.add("geom", name="palm", type="box", size=(0.012, 0.045, 0.008), pos=(0, 0, palm_z), **link)
-        self.hand.add("geom", name="flange", type="cylinder", size=(0.03, 0.02),
-                      pos=(0, 0, palm_z - 0.028), **link)
         self.tcp_site = self.hand.add("site", name="tcp", size=(0.002,), rgba=(1, 0, 0, 0.5))
         self.actuators = []
         for joint, kp, kv in zip(self.joints, prop_gains, deriv_gains, strict=True):

@@ -33,34 +33,30 @@ class PegGeometry:
     half_y: float
     length: float
 
-    def signed_distance(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distance (negative inside) and outward unit normal for points p (N, 3) in the peg frame."""
-        half_z = 0.5 * self.length
-        z = p[:, 2] - half_z  # centred on the peg's mid-height
+    def penetration(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For points p (3, N) in the peg frame (rows x, y, z): indices of those strictly inside the peg,
+        their depth below the nearest face and that face's outward unit normal (n, 3)."""
+        x, y, z, length = p[0], p[1], p[2], self.length
         if self.shape == "round":
-            radial = np.hypot(p[:, 0], p[:, 1])
-            q = np.stack([radial - self.half_x, np.abs(z) - half_z], axis=1)
-            # Inside: nearest of the side (q0) and the caps (q1); outside: Euclidean to the rim.
-            inside = np.minimum(np.maximum(q[:, 0], q[:, 1]), 0.0)
-            outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
-            sdf = inside + outside
-            side = q[:, 0] >= q[:, 1]
-            safe_r = np.where(radial > 1e-12, radial, 1.0)
-            radial_dir = np.stack([p[:, 0] / safe_r, p[:, 1] / safe_r, np.zeros_like(radial)], axis=1)
-            radial_dir[radial <= 1e-12] = (1.0, 0.0, 0.0)
-            cap_dir = np.zeros_like(p)
-            cap_dir[:, 2] = np.sign(z) + (z == 0)
-            normal = np.where(side[:, None], radial_dir, cap_dir)
-            return sdf, normal
-        half = np.array([self.half_x, self.half_y, half_z])
-        c = np.stack([p[:, 0], p[:, 1], z], axis=1)
-        q = np.abs(c) - half
-        outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
-        inside = np.minimum(q.max(axis=1), 0.0)
-        axis = q.argmax(axis=1)
-        normal = np.zeros_like(p)
-        normal[np.arange(len(p)), axis] = np.sign(c[np.arange(len(p)), axis]) + (c[np.arange(len(p)), axis] == 0)
-        return inside + outside, normal
+            r2 = x * x + y * y
+            index = np.flatnonzero((r2 < self.half_x**2) & (z > 0.0) & (z < length))
+            xs, ys, zs = x[index], y[index], z[index]
+            radial = np.sqrt(r2[index])
+            side_depth, cap_depth = self.half_x - radial, np.minimum(zs, length - zs)
+            side = side_depth <= cap_depth
+            normal = np.zeros((index.size, 3))
+            inv = np.where(side, 1.0 / np.maximum(radial, 1e-12), 0.0)
+            normal[:, 0], normal[:, 1] = xs * inv, ys * inv
+            normal[:, 2] = np.where(side, 0.0, np.where(zs > 0.5 * length, 1.0, -1.0))
+            return index, np.where(side, side_depth, cap_depth), normal
+        index = np.flatnonzero((np.abs(x) < self.half_x) & (np.abs(y) < self.half_y) & (z > 0.0) & (z < length))
+        c = p[:, index].T - (0.0, 0.0, 0.5 * length)  # centred on the box
+        slack = np.array([self.half_x, self.half_y, 0.5 * length]) - np.abs(c)
+        axis = slack.argmin(axis=1)
+        rows = np.arange(index.size)
+        normal = np.zeros((index.size, 3))
+        normal[rows, axis] = np.where(c[rows, axis] >= 0.0, 1.0, -1.0)
+        return index, slack[rows, axis], normal
 
 
 def taxel_grid(rows: int, cols: int, size_x: float, size_y: float, margin: float) -> np.ndarray:
@@ -88,37 +84,56 @@ class TactileFieldSensor:
         self.rows, self.cols = rows, cols
         self.kn, self.kt, self.mu = kn, kt, mu
         self.points = taxel_grid(rows, cols, size_x, size_y, margin)  # (N, 3) pad frame
+        self._points_t = np.ascontiguousarray(self.points.T)  # (3, N): row-wise maths is faster
 
     def field(self, peg: PegGeometry, pad_pos, pad_rot, pad_lin_vel, pad_ang_vel,
               peg_pos, peg_rot, peg_lin_vel, peg_ang_vel) -> np.ndarray:
-        """(3, rows, cols) map (shear_x, shear_y, normal) in the pad frame.
+        """(3, rows, cols) map (shear_x, shear_y, normal) of one pad; see `fields`."""
+        return self.fields(peg, np.asarray(pad_pos)[None], np.asarray(pad_rot)[None], np.asarray(pad_lin_vel)[None],
+                           np.asarray(pad_ang_vel)[None], peg_pos, peg_rot, peg_lin_vel, peg_ang_vel)[0]
 
-        Poses are world positions (3,) and rotation matrices (3, 3) whose columns are the body axes;
-        velocities are world-frame linear velocities of the frame origins and angular velocities.
+    def fields(self, peg: PegGeometry, pad_pos, pad_rot, pad_lin_vel, pad_ang_vel,
+               peg_pos, peg_rot, peg_lin_vel, peg_ang_vel) -> np.ndarray:
+        """(P, 3, rows, cols) maps (shear_x, shear_y, normal), each in its pad's frame, for P pads at once.
+
+        Pad arguments are stacked over pads: positions (P, 3), rotations (P, 3, 3) whose columns are the
+        pad axes, world linear velocities of the pad origins (P, 3) and angular velocities (P, 3). The peg
+        pose and velocities are (3,) and (3, 3); velocities are world-frame, at the frame origins.
         """
-        taxels_world = pad_pos + self.points @ pad_rot.T
-        # Taxels in the peg frame; only those near the peg need the full model.
-        taxels_peg = (taxels_world - peg_pos) @ peg_rot
-        sdf, normal_peg = peg.signed_distance(taxels_peg)
-        out = np.zeros((3, self.rows * self.cols))
-        touching = sdf < 0.0
-        if not touching.any():
-            return out.reshape(3, self.rows, self.cols)
-        depth = -sdf[touching]
-        n_world = normal_peg[touching] @ peg_rot.T  # outward peg normal, pushes the pad
-        x = taxels_world[touching]
+        num_pads, n = len(pad_pos), len(self.points)
+        out = np.zeros((num_pads, 3, n))
+        # Taxels in the peg frame, (3, P*N): R_peg^T (pad_pos + R_pad p - peg_pos) for every pad.
+        local = np.concatenate([(peg_rot.T @ pad_rot[k]) @ self._points_t
+                                + (peg_rot.T @ (pad_pos[k] - peg_pos))[:, None] for k in range(num_pads)], axis=1)
+        touching, depth, normal_peg = peg.penetration(local)
+        if touching.size == 0:
+            return out.reshape(num_pads, 3, self.rows, self.cols)
+        pad = touching // n
+        x = local[:, touching].T @ peg_rot.T  # touching taxels relative to the peg origin, world axes
+        r_pad = x - (pad_pos - peg_pos)[pad]  # ... and relative to their pad's origin
+        n_world = normal_peg @ peg_rot.T  # outward peg normal: the direction the pad is pushed
         fn = self.kn * depth
-        # Relative velocity of the taxel with respect to the peg material at the same point.
-        v_taxel = pad_lin_vel + np.cross(pad_ang_vel, x - pad_pos)
-        v_peg = peg_lin_vel + np.cross(peg_ang_vel, x - peg_pos)
-        v_rel = v_taxel - v_peg
-        vt = v_rel - n_world * np.sum(n_world * v_rel, axis=1, keepdims=True)
-        speed = np.linalg.norm(vt, axis=1, keepdims=True)
-        shear_mag = np.minimum(self.kt * speed, self.mu * fn[:, None])
-        shear = -shear_mag * vt / np.maximum(speed, 1e-12)
-        force_world = fn[:, None] * n_world + shear
-        force_pad = force_world @ pad_rot  # world -> pad frame
-        out[0, touching] = force_pad[:, 0]
-        out[1, touching] = force_pad[:, 1]
-        out[2, touching] = -force_pad[:, 2]  # compression (force into the pad) reads positive
-        return out.reshape(3, self.rows, self.cols)
+        # Velocity of each taxel relative to the peg material at the same point.
+        v_rel = np.empty_like(x)
+        force_pad = np.empty_like(x)
+        for k in range(num_pads):  # per pad: w x r as a product with the skew matrix of w
+            sel = pad == k
+            v_rel[sel] = (pad_lin_vel[k] - peg_lin_vel) + r_pad[sel] @ _skew(pad_ang_vel[k]).T
+        v_rel -= x @ _skew(peg_ang_vel).T
+        vt = v_rel - n_world * np.einsum("ij,ij->i", n_world, v_rel)[:, None]
+        speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
+        scale = np.minimum(self.kt * speed, self.mu * fn) / np.maximum(speed, 1e-12)
+        force = fn[:, None] * n_world - scale[:, None] * vt
+        for k in range(num_pads):  # world -> each pad's frame
+            sel = pad == k
+            force_pad[sel] = force[sel] @ pad_rot[k]
+        flat = out.transpose(1, 0, 2).reshape(3, -1)  # (3, P*N) view
+        flat[0, touching] = force_pad[:, 0]
+        flat[1, touching] = force_pad[:, 1]
+        flat[2, touching] = -force_pad[:, 2]  # compression (force into the pad) reads positive
+        return flat.reshape(3, num_pads, n).transpose(1, 0, 2).reshape(num_pads, 3, self.rows, self.cols)
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """Matrix K with K @ r = w x r."""
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
