@@ -153,3 +153,16 @@ def test_other_pegs_build_and_oracle_inserts(shape, size):
         done = te or tr
     e.close()
     assert info["success"], info
+
+
+def test_non_finite_action_is_refused_and_worker_errors_reach_the_caller():
+    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        e.step(np.array([np.nan, 0, 0, 0, 0, 0]))
+    e.close()
+    venv = InsertionVectorEnv({"observations": ["proprio"]}, num_envs=2, num_workers=2, seed=0)
+    venv.reset(seed=0)
+    with pytest.raises(RuntimeError, match="worker 0 failed in 'step'"):
+        venv.step(np.full((2, 6), np.nan))
+    venv.close()

@@ -87,3 +87,8 @@ def test_advantage_normalization_and_single_element_guard():
     adv = losses.normalize_advantages(torch.tensor([1.0, 2.0, 3.0, 10.0]))
     assert float(adv.mean()) == pytest.approx(0.0, abs=1e-6) and float(adv.std()) == pytest.approx(1.0, rel=1e-4)
     assert torch.equal(losses.normalize_advantages(torch.tensor([5.0])), torch.tensor([5.0]))
+
+
+def test_policy_loss_stays_finite_when_the_ratio_would_overflow():
+    loss, kl, _ = losses.policy_loss(torch.tensor([500.0]), torch.tensor([0.0]), torch.tensor([-1.0]), clip=0.2)
+    assert torch.isfinite(loss) and torch.isfinite(kl)

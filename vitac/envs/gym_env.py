@@ -65,6 +65,8 @@ class InsertionEnv(gym.Env):
     def step(self, action):
         if self._needs_reset:
             raise RuntimeError("InsertionEnv.step called after the episode ended: call reset() first")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action={np.asarray(action).tolist()} is not allowed: expected 6 finite numbers in [-1, 1]")
         timestep = self._env.step(np.asarray(action, dtype=np.float64))
         terminated = timestep.step_type == StepType.LAST and timestep.discount == 0.0
         truncated = timestep.step_type == StepType.LAST and not terminated

@@ -8,6 +8,7 @@ truncations), with `info["final_info"][i]` its success statistics.
 from __future__ import annotations
 
 import multiprocessing as mp
+import traceback
 from multiprocessing import shared_memory
 
 import gymnasium as gym
@@ -72,7 +73,10 @@ def _worker(pipe, config, seeds, shm_specs, offset):
             command, payload = pipe.recv()
             if command == "close":
                 break
-            pipe.send(getattr(group, command)(*payload))
+            try:
+                pipe.send(("ok", getattr(group, command)(*payload)))
+            except Exception:  # report to the main process instead of dying silently
+                pipe.send(("error", traceback.format_exc()))
     except KeyboardInterrupt:
         pass
     finally:
@@ -134,7 +138,12 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
             return [getattr(self._local, command)(*payloads[0])]
         for pipe, payload in zip(self._pipes, payloads, strict=True):
             pipe.send((command, payload))
-        return [pipe.recv() for pipe in self._pipes]
+        replies = [pipe.recv() for pipe in self._pipes]
+        errors = [(w, body) for w, (status, body) in enumerate(replies) if status == "error"]
+        if errors:
+            worker, trace = errors[0]
+            raise RuntimeError(f"environment worker {worker} failed in {command!r}:\n{trace}")
+        return [body for _, body in replies]
 
     def _split(self, x) -> list:
         groups = max(self.num_workers, 1)
@@ -176,7 +185,10 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
         if self._local is not None:
             self._local.close()
         for pipe in self._pipes:
-            pipe.send(("close", ()))
+            try:
+                pipe.send(("close", ()))
+            except (BrokenPipeError, EOFError):
+                pass
         for proc in self._procs:
             proc.join(timeout=5)
         for shm in self._shms.values():

@@ -46,8 +46,12 @@ def gaussian_entropy(log_std):
 
 
 def policy_loss(new_log_prob, old_log_prob, advantages, clip: float):
-    """Clipped surrogate (to minimise), approx KL ((r-1) - log r) and clip fraction."""
-    log_ratio = new_log_prob - old_log_prob
+    """Clipped surrogate (to minimise), approx KL ((r-1) - log r) and clip fraction.
+
+    The log-ratio is clamped to +-20 before exponentiating: when the policy's std collapses, a stale
+    action can be millions of nats unlikely and exp() would overflow to inf (then NaN gradients).
+    """
+    log_ratio = (new_log_prob - old_log_prob).clamp(-20.0, 20.0)
     ratio = log_ratio.exp()
     loss = torch.max(-advantages * ratio, -advantages * ratio.clamp(1.0 - clip, 1.0 + clip)).mean()
     with torch.no_grad():

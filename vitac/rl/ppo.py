@@ -208,6 +208,9 @@ class PPO(L.LightningModule):
                 optimizer.zero_grad()
                 self.manual_backward(terms["loss"])
                 grad_norm = torch.nn.utils.clip_grad_norm_(self.policy.parameters(), hp["grad_norm"])
+                if not torch.isfinite(grad_norm):  # one bad minibatch must not poison every weight
+                    sums["skipped_updates"] = sums.get("skipped_updates", 0.0) + 1.0
+                    continue
                 optimizer.step()
                 count += 1
                 for k in ("loss", "policy_loss", "value_loss", "entropy", "bounds_loss", "sym_loss", "approx_kl",
@@ -216,7 +219,9 @@ class PPO(L.LightningModule):
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
         if hp["normalize_input"]:  # after the update, so rollout and update saw the same statistics
             self.policy.update_normalizers({k: v.reshape(-1, *v.shape[2:]) for k, v in self.buffer.obs.items()})
+        skipped = sums.pop("skipped_updates", 0.0)
         metrics.update({f"losses/{k}": v / max(count, 1) for k, v in sums.items()})
+        metrics["losses/skipped_updates"] = skipped
         values, returns = self.buffer.values.flatten(), self.buffer.returns.flatten()
         metrics["losses/explained_variance"] = losses.explained_variance(values, returns)
         steps = hp["horizon"] * self.envs.num_envs
