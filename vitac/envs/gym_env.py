@@ -26,13 +26,15 @@ class InsertionEnv(gym.Env):
     Args:
         config: task settings (an InsertionConfig or a dict of its keys).
         seed: seed of the episode random state.
+        offscreen_size: offscreen render buffer in pixels (larger only for tools that render big views).
     """
 
     metadata = {"render_modes": ["rgb_array"]}
 
-    def __init__(self, config: InsertionConfig | dict | None = None, seed: int | None = None):
+    def __init__(self, config: InsertionConfig | dict | None = None, seed: int | None = None,
+                 offscreen_size: int | None = None):
         self.config = config if isinstance(config, InsertionConfig) else InsertionConfig.from_dict(config)
-        self._env = build_environment(self.config, seed=seed)
+        self._env = build_environment(self.config, seed=seed, offscreen_size=offscreen_size)
         obs_spec = self._env.observation_spec()
         self.observation_space = gym.spaces.Dict({k: _space(v) for k, v in obs_spec.items()})
         self.action_space = gym.spaces.Box(-1.0, 1.0, (6,), np.float32)
@@ -75,6 +77,18 @@ class InsertionEnv(gym.Env):
 
     def render(self):
         return self._env.task.render_wrist(self._env.physics)
+
+    def run_oracle_episode(self, seed: int) -> dict:
+        """One episode driven by the scripted oracle (reads the true socket and peg poses)."""
+        from vitac.envs.oracle import OracleController
+
+        oracle = OracleController(self.task)
+        self.reset(seed=seed)
+        done = False
+        while not done:
+            _, _, terminated, truncated, info = self.step(oracle(self.physics))
+            done = terminated or truncated
+        return info
 
     def get_state(self) -> dict:
         """Everything needed to continue this environment exactly: physics, randomized model fields, RNG."""

@@ -68,6 +68,10 @@ class VisuoTactilePolicy(nn.Module):
 
     @torch.no_grad()
     def update_normalizers(self, obs: dict) -> None:
+        keys = self.vector_keys + (["critic_state"] if self.critic is not None else [])
+        for k in keys:  # one NaN would silently poison the statistics, and every output after them
+            if not torch.isfinite(obs[k]).all():
+                raise FloatingPointError(f"observation {k!r} holds non-finite values; refusing to update its normalizer")
         for k in self.vector_keys:
             self.normalizers[k].update(obs[k])
         if self.critic is not None:

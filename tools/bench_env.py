@@ -1,0 +1,114 @@
+"""Environment speed: control steps/s of one env (all observations on) with a cost breakdown, and of
+N envs vectorised over 1 and 2 worker processes.
+
+    python tools/bench_env.py [--steps 1000] [--json docs/data/bench_env.json]
+
+Breakdown per control step: physics (the substeps), rendering (64x64 wrist frame), tactile (both
+pads' fields), framework (composer, observables, reward, gymnasium adapter: the rest). The tactile
+rate is also given in pad-frames/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco loads
+from vitac.envs.vector_env import InsertionVectorEnv
+
+ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
+
+
+def _timed(owner, name: str, totals: dict, key: str):
+    """Replace owner.name by a wrapper that adds its wall time to totals[key]."""
+    inner = getattr(owner, name)
+
+    def wrapper(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            totals[key] += time.perf_counter() - start
+
+    setattr(owner, name, wrapper)
+
+
+def single_env(steps: int) -> dict:
+    env = InsertionEnv({"observations": ALL}, seed=0)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
+    for a in actions[:50]:  # warm-up
+        _, _, te, tr, _ = env.step(a)
+        if te or tr:
+            env.reset()
+    totals = dict(physics=0.0, render=0.0, tactile=0.0)
+    # Time the pieces inside real steps: composer's substeps, the wrist frame, both pads' fields.
+    _timed(env.physics, "step", totals, "physics")
+    _timed(env.task, "render_wrist", totals, "render")
+    _timed(env.task, "raw_tactiles", totals, "tactile")
+    resets = 0
+    start = time.perf_counter()
+    for a in actions:
+        _, _, te, tr, _ = env.step(a)
+        if te or tr:
+            env.reset()
+            resets += 1
+    total = time.perf_counter() - start
+    env.close()
+    per = {k: v / steps for k, v in totals.items()}
+    return dict(steps_per_s=steps / total, step_ms=total / steps * 1e3, physics_ms=per["physics"] * 1e3,
+                render_ms=per["render"] * 1e3, tactile_ms=per["tactile"] * 1e3,
+                framework_ms=(total / steps - sum(per.values())) * 1e3, substeps=env.task.physics_steps_per_control_step,
+                tactile_pad_frames_per_s=2.0 / per["tactile"], resets_included=resets)
+
+
+def vectorised(num_envs: int, workers: int, steps: int) -> float:
+    venv = InsertionVectorEnv({"observations": ALL}, num_envs=num_envs, num_workers=workers, seed=0)
+    venv.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (steps, num_envs, 6))
+    for a in actions[:20]:
+        venv.step(a)
+    start = time.perf_counter()
+    for a in actions:
+        venv.step(a)
+    rate = steps * num_envs / (time.perf_counter() - start)
+    venv.close()
+    return rate
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    single = single_env(args.steps)
+    print(f"one env, all observations: {single['steps_per_s']:.0f} control steps/s ({single['step_ms']:.3f} ms): "
+          f"physics {single['physics_ms']:.3f} ms ({single['substeps']} substeps), render {single['render_ms']:.3f} ms, "
+          f"tactile {single['tactile_ms']:.3f} ms ({single['tactile_pad_frames_per_s']:.0f} pad-frames/s), "
+          f"framework {single['framework_ms']:.3f} ms")
+    rows = []
+    base = None
+    for workers in (1, 2):
+        for n in (1, 2, 4, 8):
+            if n < workers:
+                continue
+            rate = vectorised(n, workers, max(args.steps // n, 50))
+            base = base or rate
+            rows.append(dict(num_envs=n, workers=workers, steps_per_s=rate))
+    one_worker = {r["num_envs"]: r["steps_per_s"] for r in rows if r["workers"] == 1}
+    print("| envs | workers | env steps/s | vs same envs on 1 worker |\n|---|---|---|---|")
+    for r in rows:
+        r["speedup_vs_one_worker"] = r["steps_per_s"] / one_worker[r["num_envs"]]
+        print(f"| {r['num_envs']} | {r['workers']} | {r['steps_per_s']:.0f} | {r['speedup_vs_one_worker']:.2f}x |")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(dict(single=single, vectorised=rows, command="python tools/bench_env.py"),
+                                        indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
