@@ -35,7 +35,7 @@ class Arena(composer.Arena):
         self._mjcf_root.worldbody.add("geom", name="table", type="box", size=(0.63, 0.45, 0.02),
                                       pos=(0.5, 0, -0.02), rgba=(0.55, 0.45, 0.35, 1),
                                       contype=1, conaffinity=12)
-        self._mjcf_root.worldbody.add("camera", name="outside", pos=(0.5, -0.45, 0.35), xyaxes=(1, 0, 0, 0, 0.6, 0.8),
+        self._mjcf_root.worldbody.add("camera", name="outside", pos=(0.5, -0.3, 0.25), xyaxes=(1, 0, 0, 0, 0.55, 0.83),
                                       fovy=45)
 
 
@@ -104,8 +104,7 @@ class InsertionTask(composer.Task):
                                           config.taxel_margin, config.tactile_kn, config.tactile_kt, config.tactile_mu)
         self._keypoints = keypoint_offsets(config.num_keypoints, config.keypoint_scale)
         self._renderer = None
-        self._tactile_cache = None
-        self._contact_cache = None
+        self._cache: dict = {}  # per-physics-state values: tactile fields, contact forces, keypoint distance
         self._ids = None
         self._step = 0
         self._prev_action = np.zeros(6)
@@ -203,7 +202,7 @@ class InsertionTask(composer.Task):
         self._prev_action = np.zeros(6)
         self.first_success_step = -1
         self._f_ref[:] = 0.0
-        self._tactile_cache = self._contact_cache = None
+        self._cache.clear()
         if cfg.tactile_residual:  # paper eq. 2: residual against the field recorded at grasp
             self._f_ref[:] = self.raw_tactiles(physics)
 
@@ -251,8 +250,19 @@ class InsertionTask(composer.Task):
     def socket_pos(self, physics) -> np.ndarray:
         return physics.data.mocap_pos[self._ids["socket_mocap"]].copy()
 
+    def _per_state(self, name: str, physics, compute):
+        """compute(), memoised for the current physics state (several observables and the reward share it)."""
+        key = (physics.data.time, physics.data.qpos.tobytes())
+        hit = self._cache.get(name)
+        if hit is None or hit[0] != key:
+            hit = self._cache[name] = (key, compute())
+        return hit[1]
+
     def keypoint_distance(self, physics) -> float:
         """Mean distance between the peg's and the goal's keypoints along their z axes."""
+        return self._per_state("keypoint_distance", physics, lambda: self._keypoint_distance(physics))
+
+    def _keypoint_distance(self, physics) -> float:
         peg_pos = physics.data.xpos[self._ids["peg_body"]]
         peg_z = physics.data.xmat[self._ids["peg_body"]].reshape(3, 3)[:, 2]
         socket_pos = self.socket_pos(physics)
@@ -288,19 +298,17 @@ class InsertionTask(composer.Task):
         return res[3:], res[:3]  # linear, angular (world frame)
 
     def raw_tactiles(self, physics) -> np.ndarray:
-        """Force fields of both pads (2, 3, rows, cols), computed once per physics state."""
-        key = (physics.data.time, physics.data.qpos.tobytes())
-        if self._tactile_cache is not None and self._tactile_cache[0] == key:
-            return self._tactile_cache[1]
+        """Force fields of both pads (2, 3, rows, cols) before the grasp reference is subtracted."""
+        return self._per_state("tactile", physics, lambda: self._raw_tactiles(physics))
+
+    def _raw_tactiles(self, physics) -> np.ndarray:
         ids, d = self._ids, physics.data
         sites, peg = ids["pad_sites"], ids["peg_body"]
         velocities = [self._velocity(physics, mujoco.mjtObj.mjOBJ_SITE, site) for site in sites]
         peg_lin, peg_ang = self._velocity(physics, mujoco.mjtObj.mjOBJ_BODY, peg)
-        fields = self.tactile.fields(self.peg_geometry, d.site_xpos[sites], d.site_xmat[sites].reshape(-1, 3, 3),
-                                     np.array([v[0] for v in velocities]), np.array([v[1] for v in velocities]),
-                                     d.xpos[peg], d.xmat[peg].reshape(3, 3), peg_lin, peg_ang)
-        self._tactile_cache = (key, fields)
-        return fields
+        return self.tactile.fields(self.peg_geometry, d.site_xpos[sites], d.site_xmat[sites].reshape(-1, 3, 3),
+                                   np.array([v[0] for v in velocities]), np.array([v[1] for v in velocities]),
+                                   d.xpos[peg], d.xmat[peg].reshape(3, 3), peg_lin, peg_ang)
 
     def raw_tactile(self, physics, side: int) -> np.ndarray:
         """Force field of one pad (0 left, 1 right) before the grasp reference is subtracted."""
@@ -312,9 +320,9 @@ class InsertionTask(composer.Task):
 
     def contact_forces(self, physics) -> np.ndarray:
         """World-frame forces on the peg from the socket, the left pad and the right pad (9,)."""
-        key = (physics.data.time, physics.data.qpos.tobytes())
-        if self._contact_cache is not None and self._contact_cache[0] == key:
-            return self._contact_cache[1]
+        return self._per_state("contact_forces", physics, lambda: self._contact_forces(physics))
+
+    def _contact_forces(self, physics) -> np.ndarray:
         ids, d, m = self._ids, physics.data, physics.model
         # dm_control ends each step with mj_step1: the contact list is new but efc_force still belongs to
         # the previous contacts (stale or uninitialised rows). Solve the constraint forces for this state.
@@ -335,9 +343,7 @@ class InsertionTask(composer.Task):
             mujoco.mj_contactForce(m.ptr, d.ptr, i, force)
             world = contact.frame.reshape(3, 3).T @ force[:3]  # force of geom1 on geom2
             out[slot] += world if g2 in peg_geoms else -world
-        forces = out.ravel().astype(np.float32)
-        self._contact_cache = (key, forces)
-        return forces
+        return out.ravel().astype(np.float32)
 
     def render_wrist(self, physics) -> np.ndarray:
         """64x64 RGB uint8 (H, W, 3) from one persistent renderer (dm_control rebuilds a scene per frame)."""
