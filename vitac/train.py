@@ -17,6 +17,7 @@ from vitac.envs.config import InsertionConfig, observation_shapes
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.models.build import build_policy
 from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
+from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.ppo import PPO
 
 log = logging.getLogger(__name__)
@@ -70,6 +71,10 @@ def train(cfg: DictConfig) -> dict:
     num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every = algo.pop("save_every")
+    curriculum_settings = algo.pop("curriculum")
+    curriculum = None
+    if curriculum_settings.pop("enabled"):
+        curriculum = RandomizationCurriculum(**curriculum_settings)
     checkpoints = ModelCheckpoint(dirpath=out / "checkpoints", filename="iter{epoch:04d}", save_last=True,
                                   every_n_epochs=save_every, save_top_k=-1)
     best = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
@@ -90,7 +95,7 @@ def train(cfg: DictConfig) -> dict:
     try:
         module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
                      rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads,
-                     run_config=OmegaConf.to_container(cfg, resolve=True), **algo)
+                     run_config=OmegaConf.to_container(cfg, resolve=True), curriculum=curriculum, **algo)
         if cfg.critic_ckpt:
             load_critic(module, cfg.critic_ckpt)
         # Our checkpoints carry environment and RNG states (numpy objects): they are our own files.

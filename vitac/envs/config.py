@@ -22,9 +22,14 @@ def _fail(key: str, value, allowed: str):
 
 @dataclass
 class Randomization:
-    """Per-episode ranges [low, high] of the paper's appendix table; `enabled: false` uses the midpoints."""
+    """Per-episode ranges [low, high] of the paper's appendix table; `enabled: false` uses the midpoints.
+
+    `scale` shrinks every range about its midpoint (1 is the paper's randomization); a training
+    curriculum raises it towards 1 (see `algo.curriculum`).
+    """
 
     enabled: bool = True
+    scale: float = 1.0
     ee_pos_low: list = field(default_factory=lambda: [0.4, -0.1, 0.1])
     ee_pos_high: list = field(default_factory=lambda: [0.6, 0.1, 0.2])
     # Hand orientation as offsets from pointing straight down: roll (about x), pitch (y), yaw (z).
@@ -150,6 +155,8 @@ class InsertionConfig:
         if r.pad_stiffness[0] <= 0 or r.pad_damping[0] < 0:
             _fail("env.randomization.pad_stiffness/pad_damping", (r.pad_stiffness, r.pad_damping),
                   "stiffness > 0 and damping >= 0")
+        if isinstance(r.scale, bool) or not isinstance(r.scale, (int, float)) or not 0.0 <= r.scale <= 1.0:
+            _fail("env.randomization.scale", r.scale, "a number in [0, 1] (1 is the paper's randomization)")
         if r.socket_obs_noise < 0:
             _fail("env.randomization.socket_obs_noise", r.socket_obs_noise, "a number >= 0")
         if self.joint_damping + r.joint_damping_noise[0] < 0:

@@ -90,6 +90,12 @@ class InsertionEnv(gym.Env):
             done = terminated or truncated
         return info
 
+    def set_randomization_scale(self, scale: float) -> None:
+        """Shrink (scale < 1) or restore (1) every randomization range from the next episode on."""
+        if not 0.0 <= scale <= 1.0:
+            raise ValueError(f"randomization scale={scale!r} is not allowed: expected a number in [0, 1]")
+        self._env.task.randomization_scale = float(scale)
+
     def get_state(self) -> dict:
         """Everything needed to continue this environment exactly: physics, randomized model fields, RNG."""
         physics, task = self._env.physics, self._env.task

@@ -104,6 +104,7 @@ class InsertionTask(composer.Task):
                                           config.taxel_margin, config.tactile_kn, config.tactile_kt, config.tactile_mu)
         self._keypoints = keypoint_offsets(config.num_keypoints, config.keypoint_scale)
         self._renderer = None
+        self.randomization_scale = config.randomization.scale
         self._cache: dict = {}  # per-physics-state values: tactile fields, contact forces, keypoint distance
         self._ids = None
         self._step = 0
@@ -155,8 +156,10 @@ class InsertionTask(composer.Task):
         m, d = physics.model.ptr, physics.data.ptr
 
         def sample(low, high):
+            # Uniform in [low, high] shrunk about its midpoint by the curriculum's scale (1: the paper's).
             low, high = np.asarray(low, float), np.asarray(high, float)
-            return random_state.uniform(low, high) if r.enabled else 0.5 * (low + high)
+            mid = 0.5 * (low + high)
+            return mid + self.randomization_scale * (random_state.uniform(low, high) - mid) if r.enabled else mid
 
         # Socket pose (fixed base) and its observation noise, drawn once per episode.
         physics.data.mocap_pos[ids["socket_mocap"]] = sample(r.socket_pos_low, r.socket_pos_high)
@@ -280,11 +283,13 @@ class InsertionTask(composer.Task):
     def get_state(self) -> dict:
         """Task state beyond physics, for exact resume."""
         return dict(step=self._step, prev_action=self._prev_action.copy(), socket_noise=self._socket_noise.copy(),
+                    randomization_scale=self.randomization_scale,
                     f_ref=self._f_ref.copy(), first_success_step=self.first_success_step,
                     action_delta=getattr(self, "_action_delta", 0.0))
 
     def set_state(self, state: dict) -> None:
         self._step = state["step"]
+        self.randomization_scale = state["randomization_scale"]
         self._prev_action = state["prev_action"].copy()
         self._socket_noise = state["socket_noise"].copy()
         self._f_ref = state["f_ref"].copy()

@@ -51,6 +51,10 @@ class _EnvGroup:
             infos.append(info)
         return rewards, terminated, truncated, infos
 
+    def set_randomization_scale(self, scale: float):
+        for env in self.envs:
+            env.set_randomization_scale(scale)
+
     def get_state(self):
         return [env.get_state() for env in self.envs]
 
@@ -169,6 +173,10 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
         final_obs = {i: info.pop("final_obs") for i, info in enumerate(infos) if "final_obs" in info}
         return (self._observation(), np.array(rewards, np.float32), np.array(terminated), np.array(truncated),
                 {"final_obs": final_obs, "env_infos": infos})
+
+    def set_randomization_scale(self, scale: float) -> None:
+        """Curriculum hook: every environment's randomization ranges, scaled about their midpoints."""
+        self._call("set_randomization_scale", [(scale,)] * max(self.num_workers, 1))
 
     def get_state(self) -> list:
         return [s for group in self._call("get_state", [()] * max(self.num_workers, 1)) for s in group]

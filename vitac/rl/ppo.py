@@ -13,6 +13,7 @@ from vitac.models.normalizer import RunningNormalizer
 from vitac.models.policy import VisuoTactilePolicy
 from vitac.rl import losses
 from vitac.rl.buffer import RolloutBuffer, check_batch_layout
+from vitac.rl.curriculum import RandomizationCurriculum
 
 
 class _OneItem(Dataset):
@@ -41,6 +42,7 @@ class PPO(L.LightningModule):
         freeze_critic: keep the asymmetric critic fixed (AACD with a pre-trained critic).
         rollout_threads, update_threads: torch threads while collecting and while updating.
         run_config: the resolved run config, stored in checkpoints so evaluation can rebuild the policy.
+        curriculum: optional schedule of the training envs' randomization scale.
     """
 
     def __init__(self, policy: VisuoTactilePolicy, envs, horizon: int = 512, seq_len: int = 128,
@@ -49,7 +51,7 @@ class PPO(L.LightningModule):
                  grad_norm: float = 1.0, entropy_coef: float = 0.0, bounds_loss_coef: float = 1e-4,
                  normalize_input: bool = True, normalize_value: bool = True, normalize_advantage: bool = True,
                  freeze_critic: bool = False, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
-                 run_config: dict | None = None):
+                 run_config: dict | None = None, curriculum: RandomizationCurriculum | None = None):
         super().__init__()
         check_batch_layout(horizon, envs.num_envs, seq_len, minibatch_size)
         self.automatic_optimization = False
@@ -62,6 +64,7 @@ class PPO(L.LightningModule):
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
         self.freeze_critic = freeze_critic
         self.run_config = run_config
+        self.curriculum = curriculum
         self.rollout_threads, self.update_threads = rollout_threads, update_threads
         if freeze_critic and policy.critic is not None:
             policy.critic.requires_grad_(False)
@@ -91,8 +94,12 @@ class PPO(L.LightningModule):
             self._starts = r["starts"]
             self.env_steps = r["env_steps"]
             self.generator.set_state(r["generator"])
+            if self.curriculum is not None:
+                self.curriculum.load_state_dict(r["curriculum"])
             self._restored = None
         elif self._obs is None:
+            if self.curriculum is not None:
+                self.envs.set_randomization_scale(self.curriculum.scale)
             self._obs, _ = self.envs.reset(seed=None)
             self._state = self.policy.initial_state(n)
             self._starts = torch.ones(n)
@@ -100,7 +107,8 @@ class PPO(L.LightningModule):
     def on_save_checkpoint(self, checkpoint):
         checkpoint["vitac_config"] = self.run_config
         checkpoint["vitac"] = dict(env_states=self.envs.get_state(), lstm_state=self._state, starts=self._starts,
-                                   env_steps=self.env_steps, generator=self.generator.get_state())
+                                   env_steps=self.env_steps, generator=self.generator.get_state(),
+                                   curriculum=self.curriculum.state_dict() if self.curriculum else None)
 
     def on_load_checkpoint(self, checkpoint):
         self._restored = checkpoint.get("vitac")
@@ -162,7 +170,12 @@ class PPO(L.LightningModule):
         steps = hp["horizon"] * self.envs.num_envs
         self.env_steps += steps
         rollout_time = time.perf_counter() - start_time
-        return {"charts/rollout_SPS": steps / rollout_time, "charts/episodes": len(successes),
+        curriculum = {}
+        if self.curriculum is not None:
+            if self.curriculum.observe(successes):  # applies from each env's next episode
+                self.envs.set_randomization_scale(self.curriculum.scale)
+            curriculum["charts/randomization_scale"] = self.curriculum.scale
+        return curriculum | {"charts/rollout_SPS": steps / rollout_time, "charts/episodes": len(successes),
                 "charts/success_rate": float(np.mean(successes)) if successes else float("nan"),
                 "charts/steps_to_success": float(np.mean(steps_to_success)) if steps_to_success else float("nan"),
                 "charts/reward_per_step": float(buf.rewards.mean())}

@@ -1,0 +1,25 @@
+"""The README's commands stay true: CI runs exactly the README's test command."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_ci_runs_the_readme_test_command():
+    ci_command = [line for line in (ROOT / ".ci" / "run").read_text().splitlines() if "pytest" in line]
+    assert len(ci_command) == 1
+    assert f"    {ci_command[0].strip()}" in (ROOT / "README.md").read_text().splitlines()
+
+
+def test_readme_main_command_is_the_default_train_entry_point():
+    assert "    pip install -e . && python -m vitac.train" in (ROOT / "README.md").read_text().splitlines()
+
+
+def test_docs_cite_existing_data_files():
+    for doc in (ROOT / "docs").glob("*.md"):
+        for token in doc.read_text().split():
+            token = token.strip("`(),.:;")
+            if token.startswith("docs/data/") or token.startswith("docs/media/"):
+                assert (ROOT / token).exists(), f"{doc.name} cites missing {token}"

@@ -1,0 +1,61 @@
+"""End-to-end training throughput (env steps/s, rollout + update) for Table I configurations.
+
+    python tools/bench_train.py [--iterations 6] [--json docs/data/bench_train.json] [extra overrides...]
+
+Runs each configuration at the default `cpu` preset for a few iterations (evaluation off) and reports
+the median over iterations after the first of `charts/SPS` (whole iteration) and `charts/rollout_SPS`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import statistics
+import tempfile
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from omegaconf import open_dict
+
+from vitac.train import train
+
+CONFIGS = {"privileged": ["obs=privileged"], "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"]}
+
+
+def run(name: str, overrides: list, iterations: int) -> dict:
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
+        cfg = compose("config", overrides=overrides + ["logger=csv", f"algo.iterations={iterations}",
+                                                         "algo.eval_every=100000", "algo.save_every=100000"])
+    with tempfile.TemporaryDirectory() as out, open_dict(cfg):
+        cfg.output_dir = out
+        result = train(cfg)
+        with open(result["metrics_csv"]) as f:
+            rows = [r for r in csv.DictReader(f) if r.get("charts/SPS")]
+    sps = [float(r["charts/SPS"]) for r in rows[1:]]
+    rollout = [float(r["charts/rollout_SPS"]) for r in rows[1:]]
+    return dict(config=name, overrides=overrides, preset=cfg.preset.name, num_envs=cfg.algo.num_envs,
+                workers=cfg.algo.num_workers, iterations=iterations, env_steps_per_s=statistics.median(sps),
+                rollout_env_steps_per_s=statistics.median(rollout))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--iterations", type=int, default=6)
+    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every configuration")
+    args = parser.parse_args()
+    rows = [run(name, base + args.overrides, args.iterations) for name, base in CONFIGS.items()]
+    print("| config | preset | envs / workers | env steps/s (rollout + update) | rollout only |\n|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['config']} | {r['preset']} | {r['num_envs']} / {r['workers']} | {r['env_steps_per_s']:.0f} | "
+              f"{r['rollout_env_steps_per_s']:.0f} |")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(dict(rows=rows, command="python tools/bench_train.py"), indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
