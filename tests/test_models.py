@@ -39,7 +39,7 @@ def test_tactile_encoder_matches_architecture_table():
 def test_spatial_softargmax_finds_the_peak():
     x = torch.full((1, 1, 9, 9), -50.0)
     x[0, 0, 2, 6] = 50.0  # row 2 (y), column 6 (x)
-    out = SpatialSoftArgmax()(x)
+    out = SpatialSoftArgmax(9, 9)(x)
     expected_x, expected_y = -1 + 2 * 6 / 8, -1 + 2 * 2 / 8
     assert torch.allclose(out, torch.tensor([[expected_x, expected_y]]), atol=1e-4)
 
@@ -114,3 +114,19 @@ def test_no_symmetry_term_without_the_regularizer():
     policy = _policy("none")
     *_, sym = policy(_batch(), policy.initial_state(2), torch.zeros(2, 2), with_aux=True)
     assert sym is None and not policy.uses_symmetry
+
+
+def test_one_step_lstm_path_matches_the_sequence_path():
+    torch.manual_seed(0)
+    head = RecurrentActorHead(10)
+    x, starts = torch.randn(3, 4, 10), torch.zeros(3, 4)
+    starts[1, 2] = 1.0
+    seq_mean, _, seq_value, seq_state = head(x, head.initial_state(4), starts)
+    state, means, values = head.initial_state(4), [], []
+    for t in range(3):
+        mean, _, value, state = head(x[t:t + 1], state, starts[t:t + 1])
+        means.append(mean)
+        values.append(value)
+    assert torch.allclose(torch.cat(means), seq_mean, atol=1e-6)
+    assert torch.allclose(torch.cat(values), seq_value, atol=1e-6)
+    assert torch.allclose(state[0], seq_state[0], atol=1e-6) and torch.allclose(state[1], seq_state[1], atol=1e-6)

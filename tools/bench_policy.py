@@ -2,7 +2,7 @@
 
     python tools/bench_policy.py [--passes 1000] [--threads 2] [--json docs/data/bench_policy.json]
 
-Latency: mean of `passes` single-step forward passes after warm-up, batch 1 and batch 256; throughput
+Latency: mean of `passes` single-step forward passes (inference mode) after warm-up, batch 1 and 256; throughput
 = 1000 / latency (ms). Memory: parameters + buffers, plus the peak memory torch allocates during one
 batch-1 forward (torch.profiler on CPU, max_memory_allocated on CUDA). CUDA rows when a GPU is present.
 """
@@ -41,7 +41,7 @@ def inputs(batch: int, device):
     return obs
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def latency_ms(policy, batch: int, passes: int, device) -> float:
     obs, starts = inputs(batch, device), torch.zeros(1, batch, device=device)
     state = policy.initial_state(batch, device)

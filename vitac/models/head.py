@@ -60,6 +60,11 @@ class RecurrentActorHead(nn.Module):
     def forward(self, features: torch.Tensor, state, episode_starts: torch.Tensor):
         """features (T, B, F), episode_starts (T, B) -> mean, log_std (T, B, A), value (T, B), state."""
         h, c = state
+        if features.shape[0] == 1:  # one step (rollout, evaluation): fused cells beat the sequence kernel
+            out, (h, c) = self._lstm_step(features[0], h, c, 1.0 - episode_starts[0].float())
+            x = self.mlp(out.unsqueeze(0))
+            log_std = self.log_std(x).clamp(self.log_std_min, self.log_std_max)
+            return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
         # Run the LSTM over whole segments between the times at which any sequence starts an episode,
         # masking the state only there (rl_games' RnnWithDones): one call instead of one per step.
         starts = episode_starts.float()
@@ -72,6 +77,21 @@ class RecurrentActorHead(nn.Module):
         x = self.mlp(torch.cat(outputs, dim=0))
         log_std = self.log_std(x).clamp(self.log_std_min, self.log_std_max)
         return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
+
+
+    def _lstm_step(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor, keep: torch.Tensor):
+        """One time step through every layer with torch.lstm_cell and nn.LSTM's own weights.
+
+        x (B, F) -> output (B, H) and the new state (h, c), each (layers, B, H)."""
+        keep = keep.view(-1, 1)
+        hs, cs = [], []
+        for layer in range(self.layers):
+            weights = [getattr(self.lstm, f"{name}_l{layer}") for name in ("weight_ih", "weight_hh", "bias_ih", "bias_hh")]
+            h_l, c_l = torch.lstm_cell(x, (h[layer] * keep, c[layer] * keep), *weights)
+            hs.append(h_l)
+            cs.append(c_l)
+            x = h_l
+        return x, (torch.stack(hs), torch.stack(cs))
 
 
 class StateCritic(nn.Module):

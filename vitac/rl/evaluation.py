@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = True) -> dict:
     """Run `episodes` episodes (a multiple of envs.num_envs) with the mean action; returns per-episode results."""
     policy.eval()
