@@ -37,6 +37,7 @@ def test_smoke_run_writes_checkpoint_and_metrics_and_logs_every_loss_term(tmp_pa
         assert rows[-1][key] != "", key
     assert float(rows[-1]["losses/sym_loss"]) > 0
     assert run["preset"] == "smoke"
+    assert (tmp_path / "run" / "videos" / "iter00002.mp4").stat().st_size > 1000  # every 2nd evaluation
 
 
 def test_same_seed_same_first_iterations(tmp_path):

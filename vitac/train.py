@@ -14,11 +14,13 @@ from lightning.pytorch.loggers import CSVLogger, WandbLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.envs.gym_env import InsertionEnv
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.models.build import build_policy
 from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.ppo import PPO
+from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +72,7 @@ def train(cfg: DictConfig) -> dict:
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
     num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
-    save_every = algo.pop("save_every")
+    save_every, video_every = algo.pop("save_every"), algo.pop("eval_video_every")
     curriculum_settings = algo.pop("curriculum")
     curriculum = None
     if curriculum_settings.pop("enabled"):
@@ -79,9 +81,13 @@ def train(cfg: DictConfig) -> dict:
                                   every_n_epochs=save_every, save_top_k=-1)
     best = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
                            save_top_k=1, auto_insert_metric_name=False)
+    video_settings = dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS)))
     evaluation = EvaluationCallback(lambda: InsertionVectorEnv(settings, num_envs=min(num_envs, eval_episodes),
                                                                num_workers=0, seed=1_000_000),
-                                    every=eval_every, episodes=eval_episodes)
+                                    every=eval_every, episodes=eval_episodes, video_every=video_every,
+                                    make_video_env=lambda: InsertionEnv(video_settings, seed=1_000_000,
+                                                                        offscreen_size=OUTSIDE),
+                                    video_dir=out / "videos")
     loggers = [CSVLogger(out, name="csv", version="")]
     if cfg.logger.wandb:
         loggers.append(WandbLogger(save_dir=str(out), offline=True, project=cfg.logger.project,

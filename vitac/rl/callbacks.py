@@ -6,21 +6,29 @@ import lightning as L
 from tqdm.auto import tqdm
 
 from vitac.rl.evaluation import run_episodes
+from vitac.viz import policy_actor, record_episode, save_video
 
 
 class EvaluationCallback(L.Callback):
-    """Every `every` iterations, run the deterministic policy on `episodes` held-out seeded episodes.
+    """Every `every` iterations, run the deterministic policy on `episodes` held-out seeded episodes; every
+    `video_every` evaluations also record one episode (views and force fields) to `video_dir` and wandb.
 
     Args:
         make_envs: builds the evaluation vector env (called once, lazily).
         every: iterations between evaluations.
         episodes: episodes per evaluation.
         seed: first evaluation seed (held out from the training seeds).
+        make_video_env: builds the single env videos are recorded in (None: no videos).
+        video_every: evaluations between videos (0: none).
+        video_dir: where the videos are written.
     """
 
-    def __init__(self, make_envs, every: int, episodes: int, seed: int = 1_000_000):
+    def __init__(self, make_envs, every: int, episodes: int, seed: int = 1_000_000, make_video_env=None,
+                 video_every: int = 0, video_dir=None):
         self.make_envs, self.every, self.episodes, self.seed = make_envs, every, episodes, seed
+        self.make_video_env, self.video_every, self.video_dir = make_video_env, video_every, video_dir
         self.envs = None
+        self.evaluations = 0
         self.last = None
 
     def on_train_epoch_end(self, trainer, module):
@@ -35,6 +43,21 @@ class EvaluationCallback(L.Callback):
         if summary["steps_to_success_mean"] is not None:
             metrics["eval/steps_to_success"] = summary["steps_to_success_mean"]
         module.log_dict(metrics, on_epoch=True)
+        self.evaluations += 1
+        if self.make_video_env is not None and self.video_every and self.evaluations % self.video_every == 0:
+            self._record(trainer, module, iteration)
+
+    def _record(self, trainer, module, iteration: int):
+        env = self.make_video_env()
+        try:
+            module.policy.eval()
+            frames, _ = record_episode(env, policy_actor(module.policy), self.seed, every=3)
+        finally:
+            env.close()
+        path = save_video(frames, self.video_dir / f"iter{iteration:05d}.mp4", every=3)
+        for logger in trainer.loggers:
+            if hasattr(logger, "log_video"):  # WandbLogger
+                logger.log_video("eval/video", [str(path)], step=trainer.global_step)
 
     def teardown(self, trainer, module, stage):
         if self.envs is not None:
