@@ -23,3 +23,12 @@ def test_docs_cite_existing_data_files():
             token = token.strip("`(),.:;")
             if token.startswith("docs/data/") or token.startswith("docs/media/"):
                 assert (ROOT / token).exists(), f"{doc.name} cites missing {token}"
+
+
+def test_ruff_passes():
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "ruff", "check", "vitac", "tools", "tests"], cwd=ROOT,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr

@@ -45,18 +45,18 @@ def test_spatial_softargmax_finds_the_peak():
 
 
 def test_fusion_output_sizes():
-    v, l, r = torch.randn(4, 128), torch.randn(4, 128), torch.randn(4, 128)
-    assert NaiveFusion(128, 3)(v, l, r).shape == (4, 384)
+    v, left, right = torch.randn(4, 128), torch.randn(4, 128), torch.randn(4, 128)
+    assert NaiveFusion(128, 3)(v, left, right).shape == (4, 384)
     gated = GatedFusion(128)
-    assert gated(v, l, r).shape == (4, 128)
+    assert gated(v, left, right).shape == (4, 128)
     assert torch.allclose(gated.last_weights.sum(-1), torch.ones(4))
-    assert CrossModalTransformer(128, num_heads=4)(v, l, r).shape == (4, 256)
+    assert CrossModalTransformer(128, num_heads=4)(v, left, right).shape == (4, 256)
 
 
 def test_gated_fusion_is_a_convex_combination():
     gated = GatedFusion(8)
-    v, l, r = torch.ones(2, 8), 2 * torch.ones(2, 8), 3 * torch.ones(2, 8)
-    out = gated(v, l, r)
+    v, left, right = torch.ones(2, 8), 2 * torch.ones(2, 8), 3 * torch.ones(2, 8)
+    out = gated(v, left, right)
     w = gated.last_weights
     assert torch.allclose(out, (w[:, 0:1] * 1 + w[:, 1:2] * 2 + w[:, 2:3] * 3).expand(-1, 8))
 
@@ -64,10 +64,10 @@ def test_gated_fusion_is_a_convex_combination():
 def test_cmt_vision_attends_to_tactile():
     torch.manual_seed(0)
     cmt = CrossModalTransformer(16, num_heads=2)
-    v, l, r = torch.randn(1, 16), torch.randn(1, 16), torch.randn(1, 16)
-    base = cmt(v, l, r)
-    assert not torch.allclose(base, cmt(v, l + 1.0, r)), "tactile keys/values must influence the output"
-    assert not torch.allclose(cmt(v, l, r), cmt(v, r, l)), "left and right tokens must be distinguishable"
+    v, left, right = torch.randn(1, 16), torch.randn(1, 16), torch.randn(1, 16)
+    base = cmt(v, left, right)
+    assert not torch.allclose(base, cmt(v, left + 1.0, right)), "tactile keys/values must influence the output"
+    assert not torch.allclose(cmt(v, left, right), cmt(v, right, left)), "left and right tokens must be distinguishable"
 
 
 def test_symmetry_loss_is_zero_for_a_mirrored_pair_and_positive_otherwise():

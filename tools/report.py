@@ -111,9 +111,9 @@ def figures(groups: dict, out: Path) -> list[Path]:
             evals = [(s, e) for s, e, _ in r["curve"] if s is not None and e is not None]
             rewards = [(s, w) for s, _, w in r["curve"] if s is not None and w is not None]
             if evals:
-                ax_eval.plot(*zip(*evals), marker="o", ms=3, label=label)
+                ax_eval.plot(*zip(*evals, strict=True), marker="o", ms=3, label=label)
             if rewards:
-                ax_reward.plot(*zip(*rewards), alpha=0.8, label=label)
+                ax_reward.plot(*zip(*rewards, strict=True), alpha=0.8, label=label)
     ax_eval.set(xlabel="env steps", ylabel="held-out success rate", title="evaluation (deterministic policy)")
     ax_reward.set(xlabel="env steps", ylabel="reward per step", title="training reward")
     ax_eval.legend(fontsize=7)
@@ -126,7 +126,7 @@ def figures(groups: dict, out: Path) -> list[Path]:
         points = [(100 * r["success"], r["steps_to_success"]) for r in runs
                   if r["success"] is not None and r["steps_to_success"] is not None]
         if points:
-            ax.scatter(*zip(*points), label=row, s=20)
+            ax.scatter(*zip(*points, strict=True), label=row, s=20)
     ax.set(xlabel="success rate (%)", ylabel="steps to succeed", title="success vs steps to succeed (per run)")
     ax.legend(fontsize=7)
     fig.tight_layout()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-from dm_control import composer, mjcf
+from dm_control import composer
 from dm_control.composer.observation import observable
 from dm_env import specs
 
@@ -91,7 +91,7 @@ class InsertionTask(composer.Task):
         self._arena.attach(self.gripper)
         self.peg_geometry = config.peg_geometry()
         self.peg = props.Peg(self.peg_geometry, density=config.density, friction=config.peg_friction)
-        self._arena.add_free_entity(self.peg)
+        self._peg_frame = self._arena.add_free_entity(self.peg)  # the body carrying the peg's free joint
         hole_x, hole_y = config.hole_half_extents()
         self.socket = props.Socket(config.peg_shape, hole_x, hole_y, friction=config.socket_friction)
         self._socket_frame = self._arena.attach(self.socket)
@@ -142,9 +142,7 @@ class InsertionTask(composer.Task):
             pad_geoms=[bind(g).element_id for g in self.gripper.pads],
             peg_body=bind(self.peg.body).element_id,
             peg_geoms={bind(self.peg.geom).element_id, bind(self.peg.grasp_geom).element_id},
-            peg_qpos=m.jnt_qposadr[bind(self.peg.body).element_id and
-                                   m.body_jntadr[bind(self.peg.body).element_id]],
-            peg_dof=m.jnt_dofadr[m.body_jntadr[bind(self.peg.body).element_id]],
+            peg_qpos=m.jnt_qposadr[m.body_jntadr[bind(self._peg_frame).element_id]],
             socket_mocap=m.body_mocapid[m.body("socket/").id],
             socket_geoms=set(np.flatnonzero(m.geom_bodyid == bind(self.socket.body).element_id).tolist()),
         )
@@ -413,5 +411,3 @@ def build_environment(config: InsertionConfig, seed: int | None = None,
     return composer.Environment(task, random_state=seed, time_limit=float("inf"), strip_singleton_obs_buffer_dim=True,
                                 raise_exception_on_physics_error=True)
 
-
-__all__ = ["InsertionTask", "build_environment", "mjcf"]

@@ -47,14 +47,10 @@ class RolloutBuffer:
         for start in range(0, total, per_batch):
             ids = order[start:start + per_batch]
             chunk, env = ids // n, ids % n
-            time = chunk[None, :] * L + torch.arange(L)[:, None]  # (L, B)
-            envs = env[None, :].expand(L, -1)
-
-            def take(x):
-                return x[time, envs]
-
-            h = torch.stack([self.chunk_states[c][0][:, e] for c, e in zip(chunk.tolist(), env.tolist(), strict=True)], 1)
-            c_ = torch.stack([self.chunk_states[c][1][:, e] for c, e in zip(chunk.tolist(), env.tolist(), strict=True)], 1)
-            yield dict(obs={k: take(v) for k, v in self.obs.items()}, actions=take(self.actions),
-                       log_probs=take(self.log_probs), values=take(self.values), starts=take(self.starts),
-                       advantages=take(self.advantages), returns=take(self.returns), state=(h, c_))
+            index = (chunk[None, :] * L + torch.arange(L)[:, None], env[None, :].expand(L, -1))  # (L, B) time, env
+            pairs = list(zip(chunk.tolist(), env.tolist(), strict=True))
+            h = torch.stack([self.chunk_states[c][0][:, e] for c, e in pairs], 1)
+            c = torch.stack([self.chunk_states[c][1][:, e] for c, e in pairs], 1)
+            yield dict(obs={k: v[index] for k, v in self.obs.items()}, actions=self.actions[index],
+                       log_probs=self.log_probs[index], values=self.values[index], starts=self.starts[index],
+                       advantages=self.advantages[index], returns=self.returns[index], state=(h, c))
