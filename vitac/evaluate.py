@@ -41,14 +41,22 @@ def load_policy(ckpt: str | Path):
     return policy, cfg, settings
 
 
-def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None) -> dict:
+def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None,
+             randomization_scale: float | None = None) -> dict:
+    """Success statistics of the checkpoint's deterministic policy; the paper's randomization unless
+    `randomization_scale` shrinks it (e.g. to the level a curriculum reached)."""
     policy, cfg, settings = load_policy(ckpt)
+    settings = dict(settings, randomization=dict(settings["randomization"]))
+    if randomization_scale is not None:
+        settings["randomization"]["scale"] = randomization_scale
+    InsertionConfig.from_dict(settings)  # refuse a bad scale before any simulation
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed)
     try:
         summary = run_episodes(policy, envs, episodes, seed)
     finally:
         envs.close()
     report = dict(ckpt=str(ckpt), preset=cfg.preset.name, obs=cfg.obs.name, seed=seed,
+                  randomization_scale=settings["randomization"]["scale"],
                   **{k: v for k, v in summary.items() if k != "episodes_detail"})
     target = Path(out) if out else Path(ckpt).with_suffix(".eval.json")
     target.write_text(json.dumps(report, indent=2))
@@ -59,7 +67,8 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
 def main(cfg: DictConfig) -> None:
     if not cfg.ckpt:
         raise ValueError("ckpt=None is not allowed: pass ckpt=<run dir>/checkpoints/last.ckpt")
-    report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out)
+    report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
+                      cfg.randomization_scale)
     print(json.dumps({k: v for k, v in report.items() if k != "steps_to_success"}, indent=2))
 
 
