@@ -67,11 +67,15 @@ def test_contact_line_lies_where_the_peg_touches():
 
 
 @pytest.mark.parametrize("shape", ["round", "rectangular"])
-def test_penetration_depth_and_normal(shape):
+def test_normal_force_is_kn_times_depth_along_the_face_normal(shape):
+    # A pad facing -y pressed 0.4 mm into the +y face of the peg: at the contact line the force is
+    # purely normal, kn * depth, and no taxel beyond the peg's length (z > 0.05) feels anything.
     peg = PegGeometry(shape, 0.008, 0.005, 0.05)
-    points = np.array([[0.0, 0.0, 0.025], [0.02, 0.0, 0.025], [0.0, 0.0, -0.01], [0.0075, 0.0, 0.02],
-                       [0.0, 0.0, 0.049]])
-    index, depth, normal = peg.penetration(points.T)
-    assert index.tolist() == [0, 3, 4]  # outside points are dropped
-    np.testing.assert_allclose(depth[1:], [0.0005, 0.001])
-    np.testing.assert_allclose(normal[1:], [[1, 0, 0], [0, 0, 1]])
+    face = peg.half_x if shape == "round" else peg.half_y
+    sensor = _sensor()
+    zero = np.zeros(3)
+    field = sensor.field(peg, np.array([0.0, face - 0.0004, 0.04]), PAD_ROT, zero, zero, zero, np.eye(3), zero, zero)
+    # Exact on a flat face; on the cylinder the nearest taxel rows sit 0.37 mm off the contact line.
+    assert field[2].max() == pytest.approx(1000.0 * 0.0004, rel=1e-6 if shape == "rectangular" else 0.03)
+    y_world = 0.04 + sensor.points[:, 1].reshape(32, 32)  # the pad's y axis is world +z
+    assert np.all(field[2][y_world >= 0.05] == 0.0) and np.any(field[2][y_world < 0.05] > 0)

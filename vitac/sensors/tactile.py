@@ -1,17 +1,19 @@
-"""Penalty-based tactile force field (TacSL's model) on a taxel grid; pure numpy, no simulator import.
+"""Penalty-based tactile force field (TacSL's model) on a taxel grid; numpy + a numba kernel, no simulator.
 
 Each pad carries a rows x cols grid of taxels on its contact face. The pad frame has x along the
 image rows, y along the image columns and z along the face normal, pointing out of the pad towards
 the object. At each taxel the peg's signed distance gives a penetration depth d >= 0; the taxel then
-feels a normal force kn * d pushing into the pad and a viscous-Coulomb shear
+feels a normal force kn * d along the peg's surface normal and a viscous-Coulomb shear
 -min(kt * |vt|, mu * fn) * vt / |vt| where vt is the tangential velocity of the taxel relative to the
 peg surface. The output per pad is a (3, rows, cols) map of (shear_x, shear_y, normal) in the pad frame.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 PEG_SHAPES = ("round", "rectangular")
@@ -33,31 +35,6 @@ class PegGeometry:
     half_y: float
     length: float
 
-    def penetration(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """For points p (3, N) in the peg frame (rows x, y, z): indices of those strictly inside the peg,
-        their depth below the nearest face and that face's outward unit normal (n, 3)."""
-        x, y, z, length = p[0], p[1], p[2], self.length
-        if self.shape == "round":
-            r2 = x * x + y * y
-            index = np.flatnonzero((r2 < self.half_x**2) & (z > 0.0) & (z < length))
-            xs, ys, zs = x[index], y[index], z[index]
-            radial = np.sqrt(r2[index])
-            side_depth, cap_depth = self.half_x - radial, np.minimum(zs, length - zs)
-            side = side_depth <= cap_depth
-            normal = np.zeros((index.size, 3))
-            inv = np.where(side, 1.0 / np.maximum(radial, 1e-12), 0.0)
-            normal[:, 0], normal[:, 1] = xs * inv, ys * inv
-            normal[:, 2] = np.where(side, 0.0, np.where(zs > 0.5 * length, 1.0, -1.0))
-            return index, np.where(side, side_depth, cap_depth), normal
-        index = np.flatnonzero((np.abs(x) < self.half_x) & (np.abs(y) < self.half_y) & (z > 0.0) & (z < length))
-        c = p[:, index].T - (0.0, 0.0, 0.5 * length)  # centred on the box
-        slack = np.array([self.half_x, self.half_y, 0.5 * length]) - np.abs(c)
-        axis = slack.argmin(axis=1)
-        rows = np.arange(index.size)
-        normal = np.zeros((index.size, 3))
-        normal[rows, axis] = np.where(c[rows, axis] >= 0.0, 1.0, -1.0)
-        return index, slack[rows, axis], normal
-
 
 def taxel_grid(rows: int, cols: int, size_x: float, size_y: float, margin: float) -> np.ndarray:
     """Taxel positions (rows*cols, 3) on the pad face (z = 0), row-major, x along rows, y along columns."""
@@ -65,6 +42,80 @@ def taxel_grid(rows: int, cols: int, size_x: float, size_y: float, margin: float
     ys = np.linspace(-0.5 * size_y + margin, 0.5 * size_y - margin, cols)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     return np.stack([gx.ravel(), gy.ravel(), np.zeros(rows * cols)], axis=1)
+
+
+@numba.njit(cache=True)
+def _penetration(x, y, z, round_peg, half_x, half_y, length):
+    """Depth below the nearest face and that face's outward normal, for a point inside the peg (else depth 0)."""
+    if z <= 0.0 or z >= length:
+        return 0.0, 0.0, 0.0, 0.0
+    cap = min(z, length - z)
+    cap_nz = 1.0 if z > 0.5 * length else -1.0
+    if round_peg:
+        r2 = x * x + y * y
+        if r2 >= half_x * half_x:
+            return 0.0, 0.0, 0.0, 0.0
+        radial = math.sqrt(r2)
+        side = half_x - radial
+        if side <= cap:
+            if radial < 1e-12:
+                return side, 1.0, 0.0, 0.0
+            return side, x / radial, y / radial, 0.0
+        return cap, 0.0, 0.0, cap_nz
+    slack_x, slack_y = half_x - abs(x), half_y - abs(y)
+    if slack_x <= 0.0 or slack_y <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    if slack_x <= slack_y and slack_x <= cap:
+        return slack_x, 1.0 if x >= 0.0 else -1.0, 0.0, 0.0
+    if slack_y <= cap:
+        return slack_y, 0.0, 1.0 if y >= 0.0 else -1.0, 0.0
+    return cap, 0.0, 0.0, cap_nz
+
+
+@numba.njit(cache=True)
+def _fields(points, pad_pos, pad_rot, pad_lin, pad_ang, peg_pos, peg_rot, peg_lin, peg_ang,
+            round_peg, half_x, half_y, length, kn, kt, mu, out):
+    """Fill out (P, 3, N) with (shear_x, shear_y, normal) per taxel; see TactileFieldSensor.fields."""
+    for p in range(pad_pos.shape[0]):
+        rot = pad_rot[p]
+        for n in range(points.shape[0]):
+            px, py, pz = points[n, 0], points[n, 1], points[n, 2]
+            # Taxel relative to its pad origin (r) and to the peg origin (w), world axes.
+            rx = rot[0, 0] * px + rot[0, 1] * py + rot[0, 2] * pz
+            ry = rot[1, 0] * px + rot[1, 1] * py + rot[1, 2] * pz
+            rz = rot[2, 0] * px + rot[2, 1] * py + rot[2, 2] * pz
+            wx = pad_pos[p, 0] + rx - peg_pos[0]
+            wy = pad_pos[p, 1] + ry - peg_pos[1]
+            wz = pad_pos[p, 2] + rz - peg_pos[2]
+            # ... and in the peg frame.
+            lx = peg_rot[0, 0] * wx + peg_rot[1, 0] * wy + peg_rot[2, 0] * wz
+            ly = peg_rot[0, 1] * wx + peg_rot[1, 1] * wy + peg_rot[2, 1] * wz
+            lz = peg_rot[0, 2] * wx + peg_rot[1, 2] * wy + peg_rot[2, 2] * wz
+            depth, nx_, ny_, nz_ = _penetration(lx, ly, lz, round_peg, half_x, half_y, length)
+            if depth <= 0.0:
+                out[p, 0, n] = 0.0
+                out[p, 1, n] = 0.0
+                out[p, 2, n] = 0.0
+                continue
+            # Outward peg normal in the world: the direction the pad is pushed.
+            nx = peg_rot[0, 0] * nx_ + peg_rot[0, 1] * ny_ + peg_rot[0, 2] * nz_
+            ny = peg_rot[1, 0] * nx_ + peg_rot[1, 1] * ny_ + peg_rot[1, 2] * nz_
+            nz = peg_rot[2, 0] * nx_ + peg_rot[2, 1] * ny_ + peg_rot[2, 2] * nz_
+            fn = kn * depth
+            # Taxel velocity minus the peg material's velocity at the same point.
+            a = pad_ang[p]
+            vx = pad_lin[p, 0] + a[1] * rz - a[2] * ry - (peg_lin[0] + peg_ang[1] * wz - peg_ang[2] * wy)
+            vy = pad_lin[p, 1] + a[2] * rx - a[0] * rz - (peg_lin[1] + peg_ang[2] * wx - peg_ang[0] * wz)
+            vz = pad_lin[p, 2] + a[0] * ry - a[1] * rx - (peg_lin[2] + peg_ang[0] * wy - peg_ang[1] * wx)
+            vn = vx * nx + vy * ny + vz * nz
+            tx, ty, tz = vx - vn * nx, vy - vn * ny, vz - vn * nz
+            speed = math.sqrt(tx * tx + ty * ty + tz * tz)
+            scale = min(kt * speed, mu * fn) / max(speed, 1e-12)
+            fx, fy, fz = fn * nx - scale * tx, fn * ny - scale * ty, fn * nz - scale * tz
+            # World -> pad frame; compression (force into the pad, -z) reads positive.
+            out[p, 0, n] = fx * rot[0, 0] + fy * rot[1, 0] + fz * rot[2, 0]
+            out[p, 1, n] = fx * rot[0, 1] + fy * rot[1, 1] + fz * rot[2, 1]
+            out[p, 2, n] = -(fx * rot[0, 2] + fy * rot[1, 2] + fz * rot[2, 2])
 
 
 class TactileFieldSensor:
@@ -84,7 +135,6 @@ class TactileFieldSensor:
         self.rows, self.cols = rows, cols
         self.kn, self.kt, self.mu = kn, kt, mu
         self.points = taxel_grid(rows, cols, size_x, size_y, margin)  # (N, 3) pad frame
-        self._points_t = np.ascontiguousarray(self.points.T)  # (3, N): row-wise maths is faster
 
     def field(self, peg: PegGeometry, pad_pos, pad_rot, pad_lin_vel, pad_ang_vel,
               peg_pos, peg_rot, peg_lin_vel, peg_ang_vel) -> np.ndarray:
@@ -100,40 +150,9 @@ class TactileFieldSensor:
         pad axes, world linear velocities of the pad origins (P, 3) and angular velocities (P, 3). The peg
         pose and velocities are (3,) and (3, 3); velocities are world-frame, at the frame origins.
         """
-        num_pads, n = len(pad_pos), len(self.points)
-        out = np.zeros((num_pads, 3, n))
-        # Taxels in the peg frame, (3, P*N): R_peg^T (pad_pos + R_pad p - peg_pos) for every pad.
-        local = np.concatenate([(peg_rot.T @ pad_rot[k]) @ self._points_t
-                                + (peg_rot.T @ (pad_pos[k] - peg_pos))[:, None] for k in range(num_pads)], axis=1)
-        touching, depth, normal_peg = peg.penetration(local)
-        if touching.size == 0:
-            return out.reshape(num_pads, 3, self.rows, self.cols)
-        pad = touching // n
-        x = local[:, touching].T @ peg_rot.T  # touching taxels relative to the peg origin, world axes
-        r_pad = x - (pad_pos - peg_pos)[pad]  # ... and relative to their pad's origin
-        n_world = normal_peg @ peg_rot.T  # outward peg normal: the direction the pad is pushed
-        fn = self.kn * depth
-        # Velocity of each taxel relative to the peg material at the same point.
-        v_rel = np.empty_like(x)
-        force_pad = np.empty_like(x)
-        for k in range(num_pads):  # per pad: w x r as a product with the skew matrix of w
-            sel = pad == k
-            v_rel[sel] = (pad_lin_vel[k] - peg_lin_vel) + r_pad[sel] @ _skew(pad_ang_vel[k]).T
-        v_rel -= x @ _skew(peg_ang_vel).T
-        vt = v_rel - n_world * np.einsum("ij,ij->i", n_world, v_rel)[:, None]
-        speed = np.sqrt(np.einsum("ij,ij->i", vt, vt))
-        scale = np.minimum(self.kt * speed, self.mu * fn) / np.maximum(speed, 1e-12)
-        force = fn[:, None] * n_world - scale[:, None] * vt
-        for k in range(num_pads):  # world -> each pad's frame
-            sel = pad == k
-            force_pad[sel] = force[sel] @ pad_rot[k]
-        flat = out.transpose(1, 0, 2).reshape(3, -1)  # (3, P*N) view
-        flat[0, touching] = force_pad[:, 0]
-        flat[1, touching] = force_pad[:, 1]
-        flat[2, touching] = -force_pad[:, 2]  # compression (force into the pad) reads positive
-        return flat.reshape(3, num_pads, n).transpose(1, 0, 2).reshape(num_pads, 3, self.rows, self.cols)
-
-
-def _skew(w: np.ndarray) -> np.ndarray:
-    """Matrix K with K @ r = w x r."""
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+        f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+        out = np.empty((len(pad_pos), 3, len(self.points)))
+        _fields(self.points, f64(pad_pos), f64(pad_rot), f64(pad_lin_vel), f64(pad_ang_vel), f64(peg_pos),
+                f64(peg_rot), f64(peg_lin_vel), f64(peg_ang_vel), peg.shape == "round", float(peg.half_x),
+                float(peg.half_y), float(peg.length), float(self.kn), float(self.kt), float(self.mu), out)
+        return out.reshape(len(pad_pos), 3, self.rows, self.cols)
