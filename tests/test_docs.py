@@ -22,7 +22,8 @@ def test_docs_cite_existing_data_files():
         for token in doc.read_text().split():
             token = token.strip("`(),.:;")
             if token.startswith("docs/data/") or token.startswith("docs/media/"):
-                assert (ROOT / token).exists(), f"{doc.name} cites missing {token}"
+                found = list(ROOT.glob(token)) if "*" in token else [ROOT / token]
+                assert found and all(f.exists() for f in found), f"{doc.name} cites missing {token}"
 
 
 def test_ruff_passes():
