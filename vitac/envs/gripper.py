@@ -58,7 +58,7 @@ class ParallelGripper(composer.Entity):
         self.actuators = []
         for joint, kp, kv in zip(self.joints, prop_gains, deriv_gains, strict=True):
             self.actuators.append(root.actuator.add("position", name=joint.name, joint=joint, kp=kp, kv=kv))
-        self.fingers, self.pads, self.pad_sites, self.finger_joints = [], [], [], []
+        self.fingers, self.pads, self.pad_sites, self.finger_joints, self.finger_actuators = [], [], [], [], []
         for side, sign in (("left", 1.0), ("right", -1.0)):
             finger = self.hand.add("body", name=f"{side}_finger", gravcomp=1)
             finger.add("inertial", pos=(0, sign * 0.008, -0.03), mass=0.02, diaginertia=(1e-5, 1e-5, 1e-5))
@@ -77,8 +77,8 @@ class ParallelGripper(composer.Entity):
             x_axis = (sign, 0, 0)
             site = finger.add("site", name=f"{side}_pad_frame", pos=(0, 0, -0.5 * PAD_LENGTH),
                               xyaxes=(*x_axis, 0, 0, 1), size=(0.001,), rgba=(0, 0, 0, 0))
-            root.actuator.add("position", name=f"{side}_finger", joint=joint, kp=finger_kp, kv=finger_kd,
-                              ctrlrange=(0, 0.04))
+            self.finger_actuators.append(root.actuator.add("position", name=f"{side}_finger", joint=joint,
+                                                           kp=finger_kp, kv=finger_kd, ctrlrange=(0, 0.04)))
             self.fingers.append(finger)
             self.pads.append(pad)
             self.pad_sites.append(site)

@@ -133,9 +133,8 @@ class InsertionTask(composer.Task):
             hand_qpos=np.array([m.jnt_qposadr[bind(j).element_id] for j in self.gripper.joints]),
             hand_dof=np.array([m.jnt_dofadr[bind(j).element_id] for j in self.gripper.joints]),
             hand_act=np.array([bind(a).element_id for a in self.gripper.actuators]),
-            hand_joint=np.array([bind(j).element_id for j in self.gripper.joints]),
             finger_qpos=np.array([m.jnt_qposadr[bind(j).element_id] for j in self.gripper.finger_joints]),
-            finger_act=np.array([m.actuator(f"gripper/{s}_finger").id for s in ("left", "right")]),
+            finger_act=np.array([bind(a).element_id for a in self.gripper.finger_actuators]),
             tcp=bind(self.gripper.tcp_site).element_id,
             hand_body=bind(self.gripper.hand).element_id,
             pad_sites=[bind(s).element_id for s in self.gripper.pad_sites],
@@ -143,11 +142,11 @@ class InsertionTask(composer.Task):
             peg_body=bind(self.peg.body).element_id,
             peg_geoms={bind(self.peg.geom).element_id, bind(self.peg.grasp_geom).element_id},
             peg_qpos=m.jnt_qposadr[m.body_jntadr[bind(self._peg_frame).element_id]],
-            socket_mocap=m.body_mocapid[m.body("socket/").id],
+            # bind() does not accept mocap bodies: look the frame up by name.
+            socket_mocap=m.body_mocapid[m.body(self._socket_frame.full_identifier).id],
             socket_geoms=set(np.flatnonzero(m.geom_bodyid == bind(self.socket.body).element_id).tolist()),
         )
         self._nominal_damping = m.dof_damping[self._ids["hand_dof"]].copy()
-        self._nominal_pad_solref = m.geom_solref[self._ids["pad_geoms"]].copy()
 
     def initialize_episode(self, physics, random_state):
         cfg, r, ids = self.config, self.config.randomization, self._ids
