@@ -6,13 +6,15 @@ import csv
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-from tests.conftest import compose_config
+from tests.conftest import CONF, compose_config
 from vitac.evaluate import evaluate, load_policy
 from vitac.train import train
 
+ROOT = Path(CONF).parent
 SMOKE = ["preset=smoke", "obs=wrist_tactile", "fusion=cmt", "reg=sym"]
 
 
@@ -74,6 +76,12 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     low, high = report["success_ci95"]
     assert 0.0 <= low <= report["success_rate"] <= high <= 1.0
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
+    # tools/report.py turns run directories into Table I rows and figures.
+    subprocess.run([sys.executable, "tools/report.py", str(tmp_path / "run"), "--out", str(tmp_path / "report")],
+                   check=True, cwd=ROOT, capture_output=True)
+    table = (tmp_path / "report" / "table1.md").read_text()
+    assert "wrist_tactile / CrossModalTransformer" in table and "| smoke | 1 |" in table
+    assert (tmp_path / "report" / "learning_curves.png").stat().st_size > 0
 
 
 def test_corrupt_checkpoint_is_refused(tmp_path):

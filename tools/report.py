@@ -117,10 +117,7 @@ def figures(groups: dict, out: Path) -> list[Path]:
     ax_eval.set(xlabel="env steps", ylabel="held-out success rate", title="evaluation (deterministic policy)")
     ax_reward.set(xlabel="env steps", ylabel="reward per step", title="training reward")
     ax_eval.legend(fontsize=7)
-    fig.tight_layout()
-    paths.append(out / "learning_curves.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, out / "learning_curves.png"))
     fig, ax = plt.subplots(figsize=(5, 4))
     for row, runs in groups.items():
         points = [(100 * r["success"], r["steps_to_success"]) for r in runs
@@ -129,11 +126,17 @@ def figures(groups: dict, out: Path) -> list[Path]:
             ax.scatter(*zip(*points, strict=True), label=row, s=20)
     ax.set(xlabel="success rate (%)", ylabel="steps to succeed", title="success vs steps to succeed (per run)")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    paths.append(out / "success_vs_steps.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, out / "success_vs_steps.png"))
     return paths
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def main():
