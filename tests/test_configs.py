@@ -133,3 +133,14 @@ def test_presets_compose_and_name_themselves(preset):
     algo = OmegaConf.to_container(cfg.algo)
     assert (algo["horizon"] * algo["num_envs"]) % algo["minibatch_size"] == 0
     assert algo["horizon"] % algo["seq_len"] == 0
+
+
+@pytest.mark.parametrize("launcher,target", [("joblib_local", "JoblibLauncher"), ("slurm", "SlurmLauncher")])
+def test_launcher_configs_compose(launcher, target):
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(version_base="1.3", config_dir=CONF):
+        cfg = compose("config", overrides=[f"hydra/launcher={launcher}"], return_hydra_config=True)
+    assert cfg.hydra.launcher._target_.endswith(target)
