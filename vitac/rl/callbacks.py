@@ -29,7 +29,6 @@ class EvaluationCallback(L.Callback):
         self.make_video_env, self.video_every, self.video_dir = make_video_env, video_every, video_dir
         self.envs = None
         self.evaluations = 0
-        self.last = None
 
     def on_train_epoch_end(self, trainer, module):
         iteration = trainer.current_epoch + 1
@@ -38,7 +37,6 @@ class EvaluationCallback(L.Callback):
         if self.envs is None:
             self.envs = self.make_envs()
         summary = run_episodes(module.policy, self.envs, self.episodes, self.seed)
-        self.last = summary
         metrics = {"eval/success_rate": summary["success_rate"]}
         if summary["steps_to_success_mean"] is not None:
             metrics["eval/steps_to_success"] = summary["steps_to_success_mean"]

@@ -62,7 +62,6 @@ class PPO(L.LightningModule):
                        clip_value=clip_value, grad_norm=grad_norm, entropy_coef=entropy_coef,
                        bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
-        self.freeze_critic = freeze_critic
         self.run_config = run_config
         self.curriculum = curriculum
         self.rollout_threads, self.update_threads = rollout_threads, update_threads
@@ -75,7 +74,6 @@ class PPO(L.LightningModule):
         self.env_steps = 0
         self._obs = None  # current observation (numpy dict), LSTM state and episode-start flags
         self._restored = None
-        self.episode_stats: list[dict] = []
 
     # --------------------------------------------------------------------------- lightning plumbing
     def train_dataloader(self):
@@ -241,4 +239,3 @@ class PPO(L.LightningModule):
         metrics["charts/SPS"] = steps / (time.perf_counter() - iteration_start)
         metrics["charts/env_steps"] = float(self.env_steps)
         self.log_dict(metrics, on_step=False, on_epoch=True)
-        self.last_metrics = metrics
