@@ -97,25 +97,19 @@ class InsertionEnv(gym.Env):
         self._env.task.randomization_scale = float(scale)
 
     def get_state(self) -> dict:
-        """Everything needed to continue this environment exactly: physics, randomized model fields, RNG."""
-        physics, task = self._env.physics, self._env.task
-        ids = task._ids
-        return dict(physics=physics.get_state().copy(), mocap_pos=physics.data.mocap_pos.copy(),
-                    pad_solref=physics.model.geom_solref[ids["pad_geoms"]].copy(),
-                    dof_damping=physics.model.dof_damping[ids["hand_dof"]].copy(),
-                    ctrl=physics.data.ctrl.copy(), task=task.get_state(), rng=self._env.random_state.get_state(),
+        """Everything needed to continue this environment exactly: physics, task (with randomized model
+        fields), RNG and episode flags."""
+        physics = self._env.physics
+        return dict(physics=physics.get_state().copy(), ctrl=physics.data.ctrl.copy(),
+                    task=self._env.task.get_state(physics), rng=self._env.random_state.get_state(),
                     needs_reset=self._needs_reset, composer_reset_next=self._env._reset_next_step)
 
     def set_state(self, state: dict) -> None:
-        physics, task = self._env.physics, self._env.task
-        ids = task._ids
-        physics.model.geom_solref[ids["pad_geoms"]] = state["pad_solref"]
-        physics.model.dof_damping[ids["hand_dof"]] = state["dof_damping"]
-        physics.data.mocap_pos[:] = state["mocap_pos"]
+        physics = self._env.physics
+        self._env.task.set_state(physics, state["task"])
         physics.data.ctrl[:] = state["ctrl"]
         physics.set_state(state["physics"])
         physics.forward()
-        task.set_state(state["task"])
         self._env.random_state.set_state(state["rng"])
         self._needs_reset = state["needs_reset"]
         self._env._reset_next_step = state["composer_reset_next"]

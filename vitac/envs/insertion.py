@@ -109,6 +109,7 @@ class InsertionTask(composer.Task):
         self._ids = None
         self._step = 0
         self._prev_action = np.zeros(6)
+        self._action_delta = 0.0
         self._socket_noise = np.zeros(3)
         self._f_ref = np.zeros((2, 3, config.taxel_rows, config.taxel_cols))
         self.first_success_step = -1
@@ -277,14 +278,24 @@ class InsertionTask(composer.Task):
     def step_count(self) -> int:
         return self._step
 
-    def get_state(self) -> dict:
-        """Task state beyond physics, for exact resume."""
+    def get_state(self, physics) -> dict:
+        """Task state beyond qpos/qvel, for exact resume: episode bookkeeping and the model fields and
+        socket pose this episode randomized."""
+        ids = self._ids
         return dict(step=self._step, prev_action=self._prev_action.copy(), socket_noise=self._socket_noise.copy(),
                     randomization_scale=self.randomization_scale,
                     f_ref=self._f_ref.copy(), first_success_step=self.first_success_step,
-                    action_delta=getattr(self, "_action_delta", 0.0))
+                    action_delta=self._action_delta, mocap_pos=physics.data.mocap_pos.copy(),
+                    pad_solref=physics.model.geom_solref[ids["pad_geoms"]].copy(),
+                    dof_damping=physics.model.dof_damping[ids["hand_dof"]].copy())
 
-    def set_state(self, state: dict) -> None:
+    def set_state(self, physics, state: dict) -> None:
+        """Restore `get_state`; call before setting qpos/qvel and running a forward pass."""
+        ids = self._ids
+        physics.model.geom_solref[ids["pad_geoms"]] = state["pad_solref"]
+        physics.model.dof_damping[ids["hand_dof"]] = state["dof_damping"]
+        physics.data.mocap_pos[:] = state["mocap_pos"]
+        self._cache.clear()
         self._step = state["step"]
         self.randomization_scale = state["randomization_scale"]
         self._prev_action = state["prev_action"].copy()
