@@ -112,3 +112,10 @@ def test_multirun_over_seeds_and_every_experiment(tmp_path):
     cmd = [sys.executable, "-m", "vitac.train", "-m", "preset=smoke", "experiment=glob(t1_*)",
            f"hydra.sweep.dir={tmp_path}/experiments"]
     subprocess.run(cmd, check=True, timeout=1200)
+
+
+def test_corrupt_critic_checkpoint_is_refused(tmp_path):
+    bad = tmp_path / "bad.ckpt"
+    bad.write_bytes(b"\x00truncated")
+    with pytest.raises(ValueError, match="critic_ckpt=.*not a readable vitac checkpoint"):
+        train(compose_config(SMOKE + [f"critic_ckpt={bad}"], output_dir=tmp_path / "run"))

@@ -11,28 +11,20 @@ import logging
 from pathlib import Path
 
 import hydra
-import torch
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.envs.config import InsertionConfig
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.rl.evaluation import run_episodes
 from vitac.train import build_policy_from_config, env_settings
+from vitac.utils.checkpoint import load_checkpoint
 
 log = logging.getLogger(__name__)
 
 
 def load_policy(ckpt: str | Path):
     """Rebuild the policy from the resolved config stored in the checkpoint, then load its weights."""
-    path = Path(ckpt)
-    if not path.is_file():
-        raise FileNotFoundError(f"ckpt={str(ckpt)!r}: no such checkpoint file")
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as err:  # a truncated or foreign file must not be half-read
-        raise ValueError(f"ckpt={str(ckpt)!r} is not a readable vitac checkpoint: {err}") from err
-    if "vitac_config" not in checkpoint or "state_dict" not in checkpoint:
-        raise ValueError(f"ckpt={str(ckpt)!r} is not a vitac checkpoint (no stored config or weights)")
+    checkpoint = load_checkpoint(ckpt)
     cfg = OmegaConf.create(checkpoint["vitac_config"])
     settings = env_settings(cfg)
     policy = build_policy_from_config(cfg, InsertionConfig.from_dict(settings))

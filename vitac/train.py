@@ -7,7 +7,6 @@ from pathlib import Path
 
 import hydra
 import lightning as L
-import torch
 from hydra.core.hydra_config import HydraConfig
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger, WandbLogger
@@ -20,6 +19,7 @@ from vitac.models.build import build_policy
 from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.ppo import PPO
+from vitac.utils.checkpoint import load_checkpoint
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 
 log = logging.getLogger(__name__)
@@ -69,6 +69,7 @@ def train(cfg: DictConfig) -> dict:
         if not ckpt_path.is_file():
             raise FileNotFoundError(f"resume={cfg.resume!r}: no checkpoint at {ckpt_path}")
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
+    resolved = OmegaConf.to_container(cfg, resolve=True)
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
     num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
@@ -91,7 +92,7 @@ def train(cfg: DictConfig) -> dict:
     loggers = [CSVLogger(out, name="csv", version="")]
     if cfg.logger.wandb:
         loggers.append(WandbLogger(save_dir=str(out), offline=True, project=cfg.logger.project,
-                                   name=cfg.logger.get("name"), config=OmegaConf.to_container(cfg, resolve=True)))
+                                   name=cfg.logger.get("name"), config=resolved))
     trainer = L.Trainer(max_epochs=iterations, accelerator="cpu", devices=1, logger=loggers,
                         callbacks=[checkpoints, best, evaluation, IterationProgressBar()], enable_progress_bar=False,
                         enable_model_summary=False, log_every_n_steps=1, num_sanity_val_steps=0,
@@ -101,7 +102,7 @@ def train(cfg: DictConfig) -> dict:
     try:
         module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
                      rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads,
-                     run_config=OmegaConf.to_container(cfg, resolve=True), curriculum=curriculum, **algo)
+                     run_config=resolved, curriculum=curriculum, **algo)
         if cfg.critic_ckpt:
             load_critic(module, cfg.critic_ckpt)
         # Our checkpoints carry environment and RNG states (numpy objects): they are our own files.
@@ -125,7 +126,7 @@ def load_critic(module: PPO, path: str) -> None:
     """TacSL's AACD: start the asymmetric critic (and its input normalizer) from another run's checkpoint."""
     if module.policy.critic is None:
         raise ValueError(f"critic_ckpt={path!r} needs an asymmetric critic: set critic=state")
-    state = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+    state = load_checkpoint(path, key="critic_ckpt")["state_dict"]
     prefixes = ("policy.critic.", "policy.critic_normalizer.", "value_normalizer.")
     picked = {k: v for k, v in state.items() if k.startswith(prefixes)}
     if not picked:

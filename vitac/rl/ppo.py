@@ -120,7 +120,10 @@ class PPO(L.LightningModule):
     def _value(self, obs: dict, state, starts) -> torch.Tensor:
         """Raw-scale value of one step of observations (B, ...)."""
         _, _, value, _ = self.policy({k: v[None] for k, v in obs.items()}, state, starts[None])
-        value = value[0]
+        return self._raw(value[0])
+
+    def _raw(self, value: torch.Tensor) -> torch.Tensor:
+        """Network value -> return scale (the network predicts normalized returns when normalize_value)."""
         return self.value_normalizer.denormalize(value) if self.hp["normalize_value"] else value
 
     @torch.no_grad()
@@ -142,7 +145,7 @@ class PPO(L.LightningModule):
                 buf.obs[k][t] = v
             buf.actions[t], buf.starts[t] = action, self._starts
             buf.log_probs[t] = losses.gaussian_log_prob(action, mean, log_std)
-            buf.values[t] = self.value_normalizer.denormalize(value) if hp["normalize_value"] else value
+            buf.values[t] = self._raw(value)
             next_obs, reward, terminated, truncated, info = self.envs.step(action.clamp(-1.0, 1.0).numpy())
             ended = torch.as_tensor(terminated | truncated, dtype=torch.float32)
             buf.rewards[t], buf.ends[t] = torch.as_tensor(reward), ended
