@@ -14,7 +14,7 @@ import numpy as np
 from tqdm import tqdm
 
 from vitac.envs.gym_env import InsertionEnv
-from vitac.rl.evaluation import wilson_interval
+from vitac.rl.evaluation import summarize
 
 
 def main():
@@ -41,12 +41,9 @@ def main():
             info = env.run_oracle_episode(seed=args.seed + episode)
         results.append(info)
     env.close()
-    successes = sum(r["success"] for r in results)
-    steps = [r["steps_to_success"] for r in results if r["success"]]
-    low, high = wilson_interval(successes, len(results))
+    summary = summarize(results)
     report = dict(policy="random" if args.random else "oracle", peg=f"{args.peg_shape}-{args.peg_size}mm",
-                  episodes=len(results), success_rate=successes / len(results), success_ci95=[low, high],
-                  steps_to_success_mean=float(np.mean(steps)) if steps else None,
+                  **{k: summary[k] for k in ("episodes", "success_rate", "success_ci95", "steps_to_success_mean")},
                   final_keypoint_distance_mm_median=1000 * float(np.median([r["keypoint_distance"] for r in results])),
                   seconds=time.perf_counter() - start)
     print(json.dumps(report, indent=2))

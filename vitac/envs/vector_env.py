@@ -23,7 +23,7 @@ class _EnvGroup:
 
     def __init__(self, config: dict, seeds: list[int], obs_arrays: dict, offset: int):
         self.envs = [InsertionEnv(config, seed=s) for s in seeds]
-        self.seeds, self.obs, self.offset = seeds, obs_arrays, offset
+        self.obs, self.offset = obs_arrays, offset
 
     def _write(self, i: int, obs: dict):
         for k, v in obs.items():
