@@ -29,6 +29,33 @@ def test_observations_match_spaces(env):
     assert obs["wrist"].std() > 5, "the wrist camera sees a scene, not a blank frame"
 
 
+def test_vector_observations_end_with_their_offset_to_the_socket(env):
+    obs, _ = env.reset(seed=5)
+    for _ in range(3):
+        obs, *_ = env.step(np.full(6, 0.3))
+    task, physics = env.task, env.physics
+    seen_socket = obs["proprio"][7:10]
+    assert np.allclose(seen_socket, task.socket_pos(physics) + task._socket_noise, atol=1e-6)
+    assert np.abs(task._socket_noise).max() > 0, "the actor sees the noisy socket position"
+    assert np.allclose(obs["proprio"][-3:], seen_socket - obs["proprio"][:3], atol=1e-6)
+    assert np.allclose(obs["peg_state"][-3:], seen_socket - obs["peg_state"][:3], atol=1e-6)
+    # The critic's offset is to the true socket, and it ends with the keypoint distance the reward uses.
+    critic = obs["critic_state"]
+    assert np.allclose(critic[-4:-1], task.socket_pos(physics) - obs["peg_state"][:3], atol=1e-6)
+    assert critic[-1] == pytest.approx(task.keypoint_distance(physics), abs=1e-6)
+
+
+def test_reset_keeps_the_compiled_model():
+    # The task randomizes model fields in place; recompiling the MJCF at each reset would cost ~25 ms an
+    # episode and drop those edits' baseline (the nominal damping is read once, after compilation).
+    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e.reset(seed=0)
+    model = e.physics.model.ptr
+    e.reset(seed=1)
+    assert e.physics.model.ptr is model
+    e.close()
+
+
 def test_episode_ends_by_truncation_after_255_steps(env):
     env.reset(seed=2)
     for step in range(255):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from tests.conftest import compose_config
@@ -34,6 +35,25 @@ def test_tactile_encoder_matches_architecture_table():
     shapes = _intermediate_shapes(enc, torch.zeros(5, 3, 32, 32))
     assert shapes == [(5, 32, 13, 13), (5, 64, 10, 10), (5, 64, 8, 8)]
     assert tuple(enc(torch.zeros(5, 3, 32, 32)).shape) == (5, 128)
+
+
+@pytest.mark.parametrize("bf16", [False, True])
+def test_bf16_encoder_runs_its_convolutions_in_bfloat16_and_stays_close_to_float32(bf16):
+    torch.manual_seed(0)
+    reference = ConvSoftArgmaxEncoder((3, 32, 32))
+    enc = ConvSoftArgmaxEncoder((3, 32, 32), bf16=bf16)
+    enc.load_state_dict(reference.state_dict())
+    dtypes = []
+    enc.conv[-1].register_forward_hook(lambda module, inputs, output: dtypes.append(output.dtype))
+    x = torch.rand(32, 3, 32, 32)
+    out = enc(x)
+    assert dtypes == [torch.bfloat16 if bf16 else torch.float32]
+    assert out.dtype == torch.float32 and out.shape == (32, 128)
+    assert torch.allclose(out, reference(x), atol=1e-3)
+    # The rollout encodes small batches and the update large ones: the same sample must give the same features.
+    assert torch.allclose(torch.cat([enc(x[i:i + 8]) for i in range(0, 32, 8)]), out, atol=1e-6)
+    out.sum().backward()
+    assert enc.conv[0].weight.grad is not None and enc.conv[0].weight.grad.dtype == torch.float32
 
 
 def test_spatial_softargmax_finds_the_peak():
@@ -94,9 +114,9 @@ def _policy(reg):
 
 
 def _batch(T=2, B=2):
-    return {"proprio": torch.randn(T, B, 16), "wrist": torch.randint(0, 255, (T, B, 3, 64, 64), dtype=torch.uint8),
+    return {"proprio": torch.randn(T, B, 19), "wrist": torch.randint(0, 255, (T, B, 3, 64, 64), dtype=torch.uint8),
             "tactile_left": torch.rand(T, B, 3, 32, 32), "tactile_right": torch.rand(T, B, 3, 32, 32),
-            "critic_state": torch.randn(T, B, 38)}
+            "critic_state": torch.randn(T, B, 42)}
 
 
 def test_symmetry_term_sends_gradient_to_the_tactile_encoders():

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from tests.conftest import compose_config
-from vitac.envs.config import InsertionConfig
+from vitac.envs.config import InsertionConfig, observation_shapes
 from vitac.models.head import RecurrentActorHead
 from vitac.rl.buffer import RolloutBuffer, check_batch_layout
 from vitac.rl.losses import gaussian_log_prob
@@ -27,9 +27,9 @@ class FakeVectorEnv:
         self.log = []
 
     def _obs(self):
-        return {"proprio": self.rng.normal(size=(self.num_envs, 16)).astype(np.float32),
-                "peg_state": self.rng.normal(size=(self.num_envs, 7)).astype(np.float32),
-                "critic_state": self.rng.normal(size=(self.num_envs, 38)).astype(np.float32)}
+        shapes = observation_shapes(InsertionConfig())
+        return {k: self.rng.normal(size=(self.num_envs, *shapes[k])).astype(np.float32)
+                for k in ("proprio", "peg_state", "critic_state")}
 
     def reset(self, seed=None):
         return self._obs(), {}

@@ -189,5 +189,5 @@ class InsertionConfig:
 def observation_shapes(config: InsertionConfig) -> dict[str, tuple]:
     """Shape of every observation the task can produce, known without building the simulation."""
     tactile = (3, config.taxel_rows, config.taxel_cols)
-    return dict(proprio=(16,), peg_state=(7,), contact_forces=(9,), critic_state=(38,),
+    return dict(proprio=(19,), peg_state=(10,), contact_forces=(9,), critic_state=(42,),
                 wrist=(3, config.camera_size, config.camera_size), tactile_left=tactile, tactile_right=tactile)
