@@ -1,9 +1,11 @@
 """End-to-end training throughput (env steps/s, rollout + update) for Table I configurations.
 
-    python tools/bench_train.py [--iterations 6] [--json docs/data/bench_train.json] [extra overrides...]
+    python tools/bench_train.py [--iterations 6] [--only NAME ...] [--json docs/data/bench_train.json] [overrides...]
 
 Runs each configuration at the default `cpu` preset for a few iterations (evaluation off) and reports
 the median over iterations after the first of `charts/SPS` (whole iteration) and `charts/rollout_SPS`.
+The image policy runs twice, with the conv encoders in bfloat16 (the default) and in float32, so the
+ratio between them is measured in the same run.
 """
 
 from __future__ import annotations
@@ -21,7 +23,9 @@ from omegaconf import open_dict
 
 from vitac.train import train
 
-CONFIGS = {"privileged": ["obs=privileged"], "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"]}
+CONFIGS = {"privileged": ["obs=privileged"],
+           "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"],
+           "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "encoder.image.bf16=false"]}
 
 
 def run(name: str, overrides: list, iterations: int) -> dict:
@@ -44,10 +48,11 @@ def run(name: str, overrides: list, iterations: int) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--iterations", type=int, default=6)
+    parser.add_argument("--only", nargs="+", choices=sorted(CONFIGS), default=list(CONFIGS))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every configuration")
     args = parser.parse_args()
-    rows = [run(name, base + args.overrides, args.iterations) for name, base in CONFIGS.items()]
+    rows = [run(name, CONFIGS[name] + args.overrides, args.iterations) for name in args.only]
     print("| config | preset | envs / workers | env steps/s (rollout + update) | rollout only |\n|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['config']} | {r['preset']} | {r['num_envs']} / {r['workers']} | {r['env_steps_per_s']:.0f} | "

@@ -1,0 +1,107 @@
+"""What bounds the image policy's training speed: one PPO minibatch forward+backward, float32 vs bfloat16.
+
+    python tools/bench_update.py [--minibatch 256] [--seq-len 32] [--repeats 5] [--json docs/data/bench_update.json]
+
+Times forward + backward + Adam step of the wrist + tactile CMT + symmetry policy on one minibatch of
+sequences, with the conv encoders in float32 and under bfloat16 autocast, and counts the convolutions'
+multiply-accumulates from the encoder shapes. From these: the arithmetic rate the machine sustains, and
+the most env steps/s any implementation of the cpu preset could reach with that rate (the update passes
+each transition through the encoders forward and backward once per mini-epoch; the rollout once forward),
+before a single environment step is simulated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import torch
+
+from vitac.envs.config import InsertionConfig, observation_shapes
+
+FWD_BWD = 3  # backward costs about twice the forward (input and weight gradients)
+
+
+def conv_macs(encoder, in_shape) -> int:
+    """Multiply-accumulates of one image through an encoder's conv layers."""
+    macs, x = 0, torch.zeros(1, *in_shape)
+    for layer in encoder.conv:
+        y = layer(x)
+        if isinstance(layer, torch.nn.Conv2d):
+            macs += y[0].numel() * layer.in_channels * layer.kernel_size[0] * layer.kernel_size[1] // layer.groups
+        x = y
+    return macs
+
+
+def time_minibatch(policy, optimizer, obs, starts, repeats: int) -> float:
+    def step():
+        mean, log_std, value, _, sym = policy(obs, policy.initial_state(starts.shape[1]), starts, with_aux=True)
+        loss = mean.pow(2).mean() + log_std.mean() + value.pow(2).mean() + sym.mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+    for _ in range(2):  # warm-up (oneDNN picks and caches its kernels)
+        step()
+    start = time.perf_counter()
+    for _ in range(repeats):
+        step()
+    return (time.perf_counter() - start) / repeats
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--minibatch", type=int, default=256)
+    parser.add_argument("--seq-len", type=int, default=32)
+    parser.add_argument("--mini-epochs", type=int, default=4)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    from bench_policy import make_policy  # tools/ is the script's directory
+
+    torch.manual_seed(0)
+    policy = make_policy("cmt").train()
+    optimizer = torch.optim.Adam(policy.parameters(), lr=1e-4)
+    shapes = observation_shapes(InsertionConfig())
+    T, B = args.seq_len, args.minibatch // args.seq_len
+    obs = {k: torch.rand(T, B, *shapes[k]) for k in ("proprio", "tactile_left", "tactile_right")}
+    obs["wrist"] = torch.randint(0, 255, (T, B, *shapes["wrist"]), dtype=torch.uint8)
+    starts = torch.zeros(T, B)
+    wrist = conv_macs(policy.encoders["wrist"], shapes["wrist"])
+    tactile = conv_macs(policy.encoders["tactile_left"], shapes["tactile_left"])
+    update_macs = wrist + 3 * tactile  # left, right and the flipped right map of the symmetry term
+    rollout_macs = wrist + 2 * tactile
+    flop_per_env_step = 2 * (args.mini_epochs * FWD_BWD * update_macs + rollout_macs)
+    rows = []
+    for bf16 in (False, True):
+        for k in policy.encoders:
+            policy.encoders[k].bf16 = bf16
+        seconds = time_minibatch(policy, optimizer, obs, starts, args.repeats)
+        gflops = args.minibatch * 2 * FWD_BWD * update_macs / seconds / 1e9
+        rows.append(dict(precision="bfloat16" if bf16 else "float32", minibatch_ms=1000 * seconds,
+                         samples_per_s=args.minibatch / seconds, conv_gflop_per_s=gflops,
+                         env_steps_per_s_bound=gflops * 1e9 / flop_per_env_step))
+    print(f"conv MACs per transition: wrist {wrist / 1e6:.1f} M, each tactile map {tactile / 1e6:.2f} M; "
+          f"{flop_per_env_step / 1e9:.2f} GFLOP per env step at {args.mini_epochs} mini-epochs")
+    print(f"| encoders | minibatch of {args.minibatch} (ms) | samples/s fwd+bwd | conv GFLOP/s | env steps/s bound |\n"
+          "|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['precision']} | {r['minibatch_ms']:.0f} | {r['samples_per_s']:.0f} | {r['conv_gflop_per_s']:.0f} | "
+              f"{r['env_steps_per_s_bound']:.0f} |")
+    print(f"bfloat16 vs float32: {rows[0]['minibatch_ms'] / rows[1]['minibatch_ms']:.2f}x")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(dict(
+            command="python tools/bench_update.py", machine=platform.processor() or platform.machine(),
+            threads=args.threads, minibatch=args.minibatch, seq_len=args.seq_len, mini_epochs=args.mini_epochs,
+            wrist_conv_macs=wrist, tactile_conv_macs=tactile, flop_per_env_step=flop_per_env_step, rows=rows),
+            indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
