@@ -76,6 +76,12 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     low, high = report["success_ci95"]
     assert 0.0 <= low <= report["success_rate"] <= high <= 1.0
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
+    # Sampled actions: reproducible for a seed, and not the mean action.
+    sampled = [evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / f"s{i}.json"),
+                        deterministic=False) for i in range(2)]
+    distances = [r["final_keypoint_distance_mm"] for r in [report] + sampled]
+    assert sampled[0]["policy"] == "stochastic" and report["policy"] == "deterministic"
+    assert distances[1] == distances[2] and distances[1] != distances[0]
     # tools/report.py turns run directories into Table I rows and figures.
     subprocess.run([sys.executable, "tools/report.py", str(tmp_path / "run"), "--out", str(tmp_path / "report")],
                    check=True, cwd=ROOT, capture_output=True)

@@ -2,6 +2,10 @@
 scale, held-out evaluation success, reward per step, all against env steps.
 
     python tools/plot_run.py outputs/2026-11-25/10-00-00/csv/metrics.csv --out curves.png [--title ...]
+        [--baseline other/metrics.csv --baseline-label "..."]
+
+`--baseline` overlays another run's curriculum scale on the first panel, to compare how fast two runs
+widen the randomization.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ def main():
     parser.add_argument("metrics", type=Path)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--title", default="")
+    parser.add_argument("--baseline", type=Path, default=None, help="metrics CSV of a run to compare with")
+    parser.add_argument("--baseline-label", default="baseline")
     args = parser.parse_args()
     import matplotlib
 
@@ -51,6 +57,10 @@ def main():
     scale = column(rows, "charts/randomization_scale")
     if scale:
         axes[0].plot(*zip(*scale, strict=True), "k--", label="curriculum randomization scale")
+    if args.baseline:
+        with open(args.baseline) as f:
+            baseline = column(list(csv.DictReader(f)), "charts/randomization_scale")
+        axes[0].plot(*zip(*baseline, strict=True), ":", color="grey", label=f"scale, {args.baseline_label}")
     axes[0].set(xlabel="env steps", ylabel="success rate", title="training (curriculum ranges)", ylim=(-0.02, 1.02))
     axes[0].legend(fontsize=7)
     evals = column(rows, "eval/success_rate")

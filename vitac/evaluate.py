@@ -1,7 +1,8 @@
 """Evaluate a checkpoint: `python -m vitac.evaluate ckpt=outputs/.../checkpoints/last.ckpt [episodes=100]`.
 
 Prints (and writes next to the checkpoint) a JSON report: success rate with its 95% Wilson interval
-and the steps-to-succeed distribution, on held-out seeded episodes with the deterministic policy.
+and the steps-to-succeed distribution, on held-out seeded episodes with the deterministic policy (the
+mean action, as rl_games evaluates), or with sampled actions (`deterministic=false`).
 """
 
 from __future__ import annotations
@@ -34,9 +35,10 @@ def load_policy(ckpt: str | Path):
 
 
 def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None,
-             randomization_scale: float | None = None) -> dict:
-    """Success statistics of the checkpoint's deterministic policy; the paper's randomization unless
-    `randomization_scale` shrinks it (e.g. to the level a curriculum reached)."""
+             randomization_scale: float | None = None, deterministic: bool = True) -> dict:
+    """Success statistics of the checkpoint's policy, deterministic (mean action) unless `deterministic` is
+    false; the paper's randomization unless `randomization_scale` shrinks it (e.g. to the level a
+    curriculum reached)."""
     policy, cfg, settings = load_policy(ckpt)
     settings = dict(settings, randomization=dict(settings["randomization"]))
     if randomization_scale is not None:
@@ -44,12 +46,14 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
     InsertionConfig.from_dict(settings)  # refuse a bad scale before any simulation
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed)
     try:
-        summary = run_episodes(policy, envs, episodes, seed)
+        summary = run_episodes(policy, envs, episodes, seed, deterministic=deterministic)
     finally:
         envs.close()
     report = dict(ckpt=str(ckpt), preset=cfg.preset.name, obs=cfg.obs.name, seed=seed,
                   randomization_scale=settings["randomization"]["scale"],
-                  **{k: v for k, v in summary.items() if k != "episodes_detail"})
+                  policy="deterministic" if deterministic else "stochastic",
+                  **{k: v for k, v in summary.items() if k != "episodes_detail"},
+                  final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]])
     target = Path(out) if out else Path(ckpt).with_suffix(".eval.json")
     target.write_text(json.dumps(report, indent=2))
     return report
@@ -59,9 +63,12 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
 def main(cfg: DictConfig) -> None:
     if not cfg.ckpt:
         raise ValueError("ckpt=None is not allowed: pass ckpt=<run dir>/checkpoints/last.ckpt")
+    if not isinstance(cfg.deterministic, bool):
+        raise ValueError(f"deterministic={cfg.deterministic!r} is not allowed: expected true or false")
     report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
-                      cfg.randomization_scale)
-    print(json.dumps({k: v for k, v in report.items() if k != "steps_to_success"}, indent=2))
+                      cfg.randomization_scale, cfg.deterministic)
+    print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm")},
+                     indent=2))
 
 
 if __name__ == "__main__":

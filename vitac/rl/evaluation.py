@@ -10,8 +10,10 @@ import torch
 
 @torch.inference_mode()
 def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = True) -> dict:
-    """Run `episodes` episodes (a multiple of envs.num_envs) with the mean action; returns per-episode results."""
+    """Run `episodes` episodes (a multiple of envs.num_envs) with the mean action, or with actions sampled
+    from the policy's Gaussian (noise from a generator seeded with `seed`); returns per-episode results."""
     policy.eval()
+    generator = torch.Generator().manual_seed(seed)
     n = envs.num_envs
     results = []
     rounds = math.ceil(episodes / n)
@@ -22,7 +24,8 @@ def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = T
         while not done.all():
             obs_t = {k: torch.as_tensor(v)[None] for k, v in obs.items()}
             mean, log_std, _, state = policy(obs_t, state, starts[None])
-            action = mean[0] if deterministic else mean[0] + log_std[0].exp() * torch.randn_like(mean[0])
+            noise = torch.randn(mean[0].shape, generator=generator)
+            action = mean[0] if deterministic else mean[0] + log_std[0].exp() * noise
             obs, _, terminated, truncated, info = envs.step(action.clamp(-1, 1).numpy())
             starts = torch.zeros(n)
             for i in np.flatnonzero((terminated | truncated) & ~done):
