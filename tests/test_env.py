@@ -169,6 +169,23 @@ def test_other_pegs_build_and_oracle_inserts(shape, size):
     assert info["success"], info
 
 
+def test_observed_socket_oracle_aims_at_the_noisy_socket():
+    from vitac.envs.oracle import OracleController
+
+    env = InsertionEnv({"observations": ["proprio"], "pos_action_scale": 1.0}, seed=0)  # 1 m: nothing clips
+    env.reset(seed=7)
+    task, physics = env.task, env.physics
+    peg_xy = physics.data.xpos[task._ids["peg_body"]][:2]
+    true_xy = OracleController(task)(physics)[:2]
+    seen_xy = OracleController(task, observed_socket=True)(physics)[:2]
+    scale = task.config.pos_action_scale
+    expected_true = np.clip((task.socket_pos(physics)[:2] - peg_xy) / scale, -1, 1)
+    expected_seen = np.clip((task.observed_socket_pos(physics)[:2] - peg_xy) / scale, -1, 1)
+    env.close()
+    assert np.allclose(true_xy, expected_true) and np.allclose(seen_xy, expected_seen)
+    assert np.abs(seen_xy - true_xy).max() > 1e-4
+
+
 @pytest.mark.slow
 def test_oracle_success_over_200_episodes_is_at_least_95_percent():
     e = InsertionEnv({"observations": ["proprio"]}, seed=0)

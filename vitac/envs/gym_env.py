@@ -78,11 +78,12 @@ class InsertionEnv(gym.Env):
     def render(self):
         return self._env.task.render_wrist(self._env.physics)
 
-    def run_oracle_episode(self, seed: int) -> dict:
-        """One episode driven by the scripted oracle (reads the true socket and peg poses)."""
+    def run_oracle_episode(self, seed: int, observed_socket: bool = False) -> dict:
+        """One episode driven by the scripted oracle (reads the true peg pose, and the true socket pose
+        unless `observed_socket`, then the noisy one the actor sees)."""
         from vitac.envs.oracle import OracleController
 
-        oracle = OracleController(self.task)
+        oracle = OracleController(self.task, observed_socket=observed_socket)
         self.reset(seed=seed)
         done = False
         while not done:

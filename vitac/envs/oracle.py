@@ -16,11 +16,14 @@ class OracleController:
         hover: height of the peg bottom above the socket top before descending (m).
         align_tolerance: xy error (m) under which the peg may descend into the hole.
         tilt_tolerance: peg tilt (rad) under which the peg may descend.
+        observed_socket: aim at the socket position the actor observes (with the episode's noise) instead of
+            the true one: what a policy without contact feedback could do at best.
     """
 
     def __init__(self, task: InsertionTask, hover: float = 0.01, align_tolerance: float = 0.0006,
-                 tilt_tolerance: float = 0.02):
+                 tilt_tolerance: float = 0.02, observed_socket: bool = False):
         self.task = task
+        self.observed_socket = observed_socket
         self.hover, self.align_tolerance, self.tilt_tolerance = hover, align_tolerance, tilt_tolerance
         self.descending = False
 
@@ -32,7 +35,7 @@ class OracleController:
         peg_body = task._ids["peg_body"]
         peg_pos = physics.data.xpos[peg_body]
         peg_rot = physics.data.xmat[peg_body].reshape(3, 3)
-        goal = task.socket_pos(physics)
+        goal = task.observed_socket_pos(physics) if self.observed_socket else task.socket_pos(physics)
         # Rotation taking the peg's axes onto the socket's (upright, and square to a rectangular hole).
         desired = np.eye(3)
         if cfg.peg_shape == "round":  # the peg's yaw does not matter: keep it
