@@ -75,13 +75,14 @@ def main():
     wrist = conv_macs(policy.encoders["wrist"], shapes["wrist"])
     tactile = conv_macs(policy.encoders["tactile_left"], shapes["tactile_left"])
     update_macs = wrist + 3 * tactile  # left, right and the flipped right map of the symmetry term
-    flop_per_env_step = 2 * args.mini_epochs * FWD_BWD * update_macs
+    flop_per_transition = 2 * FWD_BWD * update_macs  # one forward + backward pass through the encoders
+    flop_per_env_step = args.mini_epochs * flop_per_transition
     rows = []
     for bf16 in (False, True):
         for k in policy.encoders:
             policy.encoders[k].bf16 = bf16
         seconds = time_minibatch(policy, optimizer, obs, starts, args.repeats)
-        gflops = args.minibatch * 2 * FWD_BWD * update_macs / seconds / 1e9
+        gflops = args.minibatch * flop_per_transition / seconds / 1e9
         rows.append(dict(precision="bfloat16" if bf16 else "float32", minibatch_ms=1000 * seconds,
                          samples_per_s=args.minibatch / seconds, conv_gflop_per_s=gflops,
                          update_only_env_steps_per_s=args.minibatch / seconds / args.mini_epochs))

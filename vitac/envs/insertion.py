@@ -351,6 +351,7 @@ class InsertionTask(composer.Task):
         pairs = d.ptr.contact.geom  # (ncon, 2)
         on_peg = self._peg_geom_mask[pairs]  # (ncon, 2)
         slots = self._contact_slot[pairs]  # the other geom's slot: 0 socket, 1 left pad, 2 right pad, -1 other
+        frames = d.ptr.contact.frame  # (ncon, 9): each contact's frame, normal first
         force = np.empty(6)
         for i in np.flatnonzero(on_peg.any(axis=1)):
             peg_is_second = bool(on_peg[i, 1])
@@ -358,7 +359,7 @@ class InsertionTask(composer.Task):
             if slot < 0:
                 continue
             mujoco.mj_contactForce(m.ptr, d.ptr, i, force)
-            world = d.ptr.contact.frame[i].reshape(3, 3).T @ force[:3]  # force of geom1 on geom2
+            world = frames[i].reshape(3, 3).T @ force[:3]  # force of geom1 on geom2
             out[slot] += world if peg_is_second else -world
         return out.ravel().astype(np.float32)
 

@@ -24,8 +24,9 @@ def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = T
         while not done.all():
             obs_t = {k: torch.as_tensor(v)[None] for k, v in obs.items()}
             mean, log_std, _, state = policy(obs_t, state, starts[None])
-            noise = torch.randn(mean[0].shape, generator=generator)
-            action = mean[0] if deterministic else mean[0] + log_std[0].exp() * noise
+            action = mean[0]
+            if not deterministic:
+                action = action + log_std[0].exp() * torch.randn(action.shape, generator=generator)
             obs, _, terminated, truncated, info = envs.step(action.clamp(-1, 1).numpy())
             starts = torch.zeros(n)
             for i in np.flatnonzero((terminated | truncated) & ~done):
