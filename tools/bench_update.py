@@ -1,6 +1,7 @@
 """What bounds the image policy's training speed: one PPO minibatch forward+backward, float32 vs bfloat16.
 
     python tools/bench_update.py [--minibatch 256] [--seq-len 32] [--repeats 5] [--json docs/data/bench_update.json]
+    python tools/bench_update.py --profile   # also: where the bfloat16 minibatch's time goes (torch.profiler)
 
 Times forward + backward + Adam step of the wrist + tactile CMT + symmetry policy on one minibatch of
 sequences, with the conv encoders in float32 and under bfloat16 autocast, and counts the convolutions'
@@ -60,6 +61,7 @@ def main():
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--profile", action="store_true", help="print torch.profiler's top ops of the bfloat16 minibatch")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     from bench_policy import make_policy  # tools/ is the script's directory
@@ -94,6 +96,10 @@ def main():
         print(f"| {r['precision']} | {r['minibatch_ms']:.0f} | {r['samples_per_s']:.0f} | {r['conv_gflop_per_s']:.0f} | "
               f"{r['update_only_env_steps_per_s']:.0f} |")
     print(f"bfloat16 vs float32: {rows[0]['minibatch_ms'] / rows[1]['minibatch_ms']:.2f}x")
+    if args.profile:  # the encoders are still in bfloat16 from the last row
+        with torch.profiler.profile() as prof:
+            time_minibatch(policy, optimizer, obs, starts, repeats=1)
+        print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=8))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(dict(
