@@ -66,6 +66,9 @@ class InsertionConfig:
     finger_kd: float = 2.0
     peg_friction: float = 1.0
     socket_friction: float = 0.5
+    # Time constant (s) of the socket's contacts (MuJoCo solref): stiff enough that a fully inserted peg
+    # tilts no further than the clearance allows, as with TacSL's rigid PhysX contacts.
+    socket_contact_timeconst: float = 0.005
     pad_friction: float = 1.0
     density: float = 8000.0
     clearance: float | None = None  # diametral clearance (m); None takes TacSL's for the peg size
@@ -130,6 +133,10 @@ class InsertionConfig:
             value = getattr(self, key)
             if len(value) != 6 or any(v < 0 for v in value):
                 _fail(f"env.{key}", value, "6 non-negative numbers (3 translational, 3 rotational)")
+        min_timeconst = 2.0 / (self.control_hz * self.physics_substeps)
+        if not isinstance(self.socket_contact_timeconst, (int, float)) or not self.socket_contact_timeconst >= min_timeconst:
+            _fail("env.socket_contact_timeconst", self.socket_contact_timeconst,
+                  f"a time constant >= 2 physics timesteps ({min_timeconst:.4g} s), which MuJoCo needs for stability")
         if self.camera_fovy >= 180:
             _fail("env.camera_fovy", self.camera_fovy, "a field of view below 180 degrees")
         if self.clearance is not None and not self.clearance > 0:

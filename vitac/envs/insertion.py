@@ -93,7 +93,8 @@ class InsertionTask(composer.Task):
         self.peg = props.Peg(self.peg_geometry, density=config.density, friction=config.peg_friction)
         self._peg_frame = self._arena.add_free_entity(self.peg)  # the body carrying the peg's free joint
         hole_x, hole_y = config.hole_half_extents()
-        self.socket = props.Socket(config.peg_shape, hole_x, hole_y, friction=config.socket_friction)
+        self.socket = props.Socket(config.peg_shape, hole_x, hole_y, friction=config.socket_friction,
+                                    contact_timeconst=config.socket_contact_timeconst)
         self._socket_frame = self._arena.attach(self.socket)
         # A mocap body: MuJoCo expects moved static bodies to be mocap (moving body_pos of a static body
         # at run time silently breaks collision detection elsewhere in the scene).

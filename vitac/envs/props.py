@@ -16,6 +16,9 @@ RECT_HOLE_WIDTH = {8: 0.0081444, 12: 0.0121778, 16: 0.0162182}
 PEG_LENGTH = 0.050
 SOCKET_HEIGHT = 0.028
 HOLE_DEPTH = 0.023
+# Socket contact impedance (MuJoCo solimp): with the stiff time constant, a fully inserted peg twisted hard by
+# the hand tilts ~1.4 degrees, near the 1.3 the clearance allows (TacSL's contacts are rigid), not 3.7 (defaults).
+SOCKET_SOLIMP = (0.99, 0.999, 0.001)
 
 
 class Peg(composer.Entity):
@@ -54,15 +57,15 @@ class Socket(composer.Entity):
     (tangential half-width r * tan(pi / n)), so adjacent boxes meet without overlapping into the hole.
     """
 
-    def _build(self, shape: str, hole_x: float, hole_y: float, friction: float, ring_boxes: int = 32,
-               wall: float = 0.008, rgba=(0.2, 0.35, 0.8, 1)):
+    def _build(self, shape: str, hole_x: float, hole_y: float, friction: float, contact_timeconst: float = 0.005,
+               ring_boxes: int = 32, wall: float = 0.008, rgba=(0.2, 0.35, 0.8, 1)):
         self._mjcf_root = mjcf.RootElement(model="socket")
         self.body = self._mjcf_root.worldbody.add("body", name="body")
         half_depth = 0.5 * HOLE_DEPTH
         floor_half = SOCKET_HEIGHT - HOLE_DEPTH
         outer = max(hole_x, hole_y) + wall
         common = dict(contype=collision.WORLD, conaffinity=collision.WORLD_AFFINITY, friction=(friction, 0.005, 0.0001),
-                      rgba=rgba, condim=4, priority=1)
+                      rgba=rgba, condim=4, priority=1, solref=(contact_timeconst, 1.0), solimp=SOCKET_SOLIMP)
         self.body.add("geom", name="floor", type="box", size=(outer, outer, 0.5 * floor_half),
                       pos=(0, 0, -0.5 * floor_half), **common)
         if shape == "round":
