@@ -76,6 +76,12 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     low, high = report["success_ci95"]
     assert 0.0 <= low <= report["success_rate"] <= high <= 1.0
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
+    assert report["socket_obs_noise"] == 0.005
+    noiseless = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "n.json"),
+                         socket_obs_noise=0.0)
+    assert noiseless["socket_obs_noise"] == 0.0
+    with pytest.raises(ValueError, match="socket_obs_noise"):
+        evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, socket_obs_noise=-1.0)
     # Sampled actions: reproducible for a seed, and not the mean action.
     sampled = [evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / f"s{i}.json"),
                         deterministic=False) for i in range(2)]

@@ -3,6 +3,10 @@ scale, held-out evaluation success, reward per step, all against env steps.
 
     python tools/plot_run.py outputs/2026-11-25/10-00-00/csv/metrics.csv --out curves.png [--title ...]
         [--baseline other/metrics.csv --baseline-label "..."]
+    python tools/plot_run.py first/csv/metrics.csv resumed/csv/metrics.csv --out curves.png   # one run, resumed
+
+Several CSVs are one run's segments (a run resumed into another directory), in order; a vertical line marks
+where each later segment starts.
 
 `--baseline` overlays another run's curriculum scale on the first panel, to compare how fast two runs
 widen the randomization.
@@ -36,7 +40,7 @@ def smooth(points, window: int):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("metrics", type=Path)
+    parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--title", default="")
     parser.add_argument("--baseline", type=Path, default=None, help="metrics CSV of a run to compare with")
@@ -47,9 +51,17 @@ def main():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    with open(args.metrics) as f:
-        rows = list(csv.DictReader(f))
+    rows, resumes = [], []
+    for i, path in enumerate(args.metrics):
+        with open(path) as f:
+            segment = list(csv.DictReader(f))
+        if i > 0 and segment:
+            resumes.append(float(segment[0]["charts/env_steps"]))
+        rows += segment
     fig, axes = plt.subplots(1, 3, figsize=(14, 3.8))
+    for ax in axes:
+        for steps in resumes:
+            ax.axvline(steps, color="grey", lw=0.8, alpha=0.6)
     train = column(rows, "charts/success_rate")
     if train:
         axes[0].plot(*zip(*train, strict=True), ".", alpha=0.3, label="training episodes")

@@ -35,15 +35,18 @@ def load_policy(ckpt: str | Path):
 
 
 def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None,
-             randomization_scale: float | None = None, deterministic: bool = True) -> dict:
+             randomization_scale: float | None = None, deterministic: bool = True,
+             socket_obs_noise: float | None = None) -> dict:
     """Success statistics of the checkpoint's policy, deterministic (mean action) unless `deterministic` is
     false; the paper's randomization unless `randomization_scale` shrinks it (e.g. to the level a
-    curriculum reached)."""
+    curriculum reached) or `socket_obs_noise` replaces the socket observation noise (0: what the noise costs)."""
     policy, cfg, settings = load_policy(ckpt)
     settings = dict(settings, randomization=dict(settings["randomization"]))
     if randomization_scale is not None:
         settings["randomization"]["scale"] = randomization_scale
-    InsertionConfig.from_dict(settings)  # refuse a bad scale before any simulation
+    if socket_obs_noise is not None:
+        settings["randomization"]["socket_obs_noise"] = socket_obs_noise
+    InsertionConfig.from_dict(settings)  # refuse a bad override before any simulation
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed)
     try:
         summary = run_episodes(policy, envs, episodes, seed, deterministic=deterministic)
@@ -51,6 +54,7 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
         envs.close()
     report = dict(ckpt=str(ckpt), preset=cfg.preset.name, obs=cfg.obs.name, seed=seed,
                   randomization_scale=settings["randomization"]["scale"],
+                  socket_obs_noise=settings["randomization"]["socket_obs_noise"],
                   policy="deterministic" if deterministic else "stochastic",
                   **{k: v for k, v in summary.items() if k != "episodes_detail"},
                   final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]])
@@ -66,7 +70,7 @@ def main(cfg: DictConfig) -> None:
     if not isinstance(cfg.deterministic, bool):
         raise ValueError(f"deterministic={cfg.deterministic!r} is not allowed: expected true or false")
     report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
-                      cfg.randomization_scale, cfg.deterministic)
+                      cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise)
     print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm")},
                      indent=2))
 
