@@ -13,6 +13,7 @@ import pytest
 from tests.conftest import CONF, compose_config
 from vitac.evaluate import evaluate, load_policy
 from vitac.train import train
+from vitac.utils.checkpoint import load_checkpoint
 
 ROOT = Path(CONF).parent
 SMOKE = ["preset=smoke", "obs=wrist_tactile", "fusion=cmt", "reg=sym"]
@@ -62,6 +63,20 @@ def test_killed_run_resumes_to_the_same_metrics(tmp_path):
     assert resumed_reward == full_reward
     # Weights and optimizer resume; CPU conv kernels are reproducible across processes only to ~1e-6.
     assert [float(x) for x in resumed_losses] == pytest.approx([float(x) for x in full_losses], rel=1e-4, abs=1e-9)
+
+
+def test_resuming_without_the_curriculum_restores_the_configured_ranges(tmp_path):
+    base = ["preset=smoke", "obs=privileged", "algo.curriculum.enabled=true", "algo.curriculum.start=0.0"]
+    train(compose_config(base + ["algo.iterations=1"], output_dir=tmp_path / "part"))
+
+    def env_scales(run_dir, extra):
+        run = train(compose_config(base + ["algo.iterations=2", f"resume={tmp_path / 'part'}"] + extra,
+                                   output_dir=run_dir))
+        states = load_checkpoint(run["checkpoint"])["vitac"]["env_states"]
+        return {s["task"]["randomization_scale"] for s in states}
+
+    assert env_scales(tmp_path / "kept", []) == {0.0}  # exact resume keeps the curriculum's stage
+    assert env_scales(tmp_path / "off", ["algo.curriculum.enabled=false"]) == {1.0}
 
 
 def test_resume_without_checkpoint_fails_clearly(tmp_path):

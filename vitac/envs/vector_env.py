@@ -108,6 +108,8 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
             raise ValueError(f"algo.num_workers={num_workers!r} is not allowed: expected 0 or a divisor of "
                              f"num_envs={num_envs}")
         self.num_envs, self.num_workers = num_envs, num_workers
+        # The configured randomization scale (1: the paper's), which a curriculum overrides while it runs.
+        self.configured_scale = float((config.get("randomization") or {}).get("scale", 1.0))
         probe = InsertionEnv(config, seed=seed)
         self.single_observation_space, self.single_action_space = probe.observation_space, probe.action_space
         probe.close()

@@ -94,6 +94,8 @@ class PPO(L.LightningModule):
             self.generator.set_state(r["generator"])
             if self.curriculum is not None:
                 self.curriculum.load_state_dict(r["curriculum"])
+            elif r["curriculum"] is not None:  # curriculum switched off on resume: the configured ranges from
+                self.envs.set_randomization_scale(self.envs.configured_scale)  # each env's next episode on
             self._restored = None
         elif self._obs is None:
             if self.curriculum is not None:
