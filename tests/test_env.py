@@ -158,6 +158,25 @@ def test_inserted_peg_twisted_by_the_hand_stays_within_the_clearance(seed):
     assert max(tilts) < 1.6 and info["success"], (max(tilts), info["keypoint_distance"])
 
 
+def test_episode_end_reports_where_the_peg_ended():
+    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    inserted = e.run_oracle_episode(seed=100)
+    outcomes = {}
+    for name, action in [("still", np.zeros(6)), ("down", np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0]))]:
+        e.reset(seed=100)
+        done, steps = False, 0
+        while not done:
+            _, _, te, tr, info = e.step(action)
+            done, steps = te or tr, steps + 1
+            assert ("outcome" in info) == done  # only the last step carries it
+        outcomes[name] = info
+    e.close()
+    assert inserted["outcome"] == "inserted" and abs(inserted["peg_height"]) < 1e-3 and inserted["peg_offset_xy"] < 5e-4
+    assert outcomes["still"]["outcome"] == "not over the socket" and outcomes["still"]["peg_offset_xy"] > 0.05
+    # Driven straight down beside the socket, the peg hits the table and turns over in the grasp.
+    assert outcomes["down"]["outcome"] == "dropped or knocked over" and outcomes["down"]["peg_tilt"] > 1.0
+
+
 def test_vector_env_workers_match_in_process_and_autoreset_same_step():
     cfg = {"observations": ["proprio", "critic_state"], "episode_steps": 5}
     actions = np.random.default_rng(0).uniform(-1, 1, (7, 4, 6))

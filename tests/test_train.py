@@ -92,6 +92,7 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     assert 0.0 <= low <= report["success_rate"] <= high <= 1.0
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
     assert report["socket_obs_noise"] == 0.005
+    assert sum(report["outcomes"].values()) == 2 and len(report["final_peg"]) == 2
     noiseless = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "n.json"),
                          socket_obs_noise=0.0)
     assert noiseless["socket_obs_noise"] == 0.0

@@ -47,7 +47,7 @@ def main():
     summary = summarize(results)
     policy = "random" if args.random else "oracle, observed socket" if args.observed_socket else "oracle"
     report = dict(policy=policy, peg=f"{args.peg_shape}-{args.peg_size}mm",
-                  **{k: summary[k] for k in ("episodes", "success_rate", "success_ci95", "steps_to_success_mean")},
+                  **{k: summary[k] for k in ("episodes", "success_rate", "success_ci95", "steps_to_success_mean", "outcomes")},
                   final_keypoint_distance_mm_median=1000 * float(np.median([r["keypoint_distance"] for r in results])),
                   seconds=time.perf_counter() - start)
     print(json.dumps(report, indent=2))

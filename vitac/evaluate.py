@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from pathlib import Path
 
 import hydra
@@ -57,7 +58,10 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
                   socket_obs_noise=settings["randomization"]["socket_obs_noise"],
                   policy="deterministic" if deterministic else "stochastic",
                   **{k: v for k, v in summary.items() if k != "episodes_detail"},
-                  final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]])
+                  final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]],
+                  final_peg=[dict(outcome=e["outcome"], offset_xy_mm=round(1000 * e["peg_offset_xy"], 2),
+                                  height_mm=round(1000 * e["peg_height"], 2), tilt_deg=round(math.degrees(e["peg_tilt"]), 2))
+                             for e in summary["episodes_detail"]])
     target = Path(out) if out else Path(ckpt).with_suffix(".eval.json")
     target.write_text(json.dumps(report, indent=2))
     return report
@@ -71,7 +75,7 @@ def main(cfg: DictConfig) -> None:
         raise ValueError(f"deterministic={cfg.deterministic!r} is not allowed: expected true or false")
     report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
                       cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise)
-    print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm")},
+    print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm", "final_peg")},
                      indent=2))
 
 

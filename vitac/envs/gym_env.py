@@ -73,7 +73,10 @@ class InsertionEnv(gym.Env):
         terminated = timestep.step_type == StepType.LAST and timestep.discount == 0.0
         truncated = timestep.step_type == StepType.LAST and not terminated
         self._needs_reset = terminated or truncated
-        return dict(timestep.observation), float(timestep.reward), bool(terminated), bool(truncated), self._info()
+        info = self._info()
+        if self._needs_reset:  # how the episode ended, for evaluation reports
+            info.update(self._env.task.outcome(self._env.physics))
+        return dict(timestep.observation), float(timestep.reward), bool(terminated), bool(truncated), info
 
     def render(self):
         return self._env.task.render_wrist(self._env.physics)

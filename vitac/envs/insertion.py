@@ -281,6 +281,28 @@ class InsertionTask(composer.Task):
     def is_success(self, physics) -> bool:
         return self.keypoint_distance(physics) < self.config.success_threshold
 
+    def outcome(self, physics) -> dict:
+        """Where the peg is relative to the goal (its bottom-face centre's horizontal offset and height above the
+        hole floor, m; its tilt, rad) and what that means, for reading why episodes fail."""
+        peg_pos = physics.data.xpos[self._ids["peg_body"]]
+        axis_z = physics.data.xmat[self._ids["peg_body"]][8]
+        socket_pos = self.socket_pos(physics)
+        offset, height = float(np.linalg.norm(peg_pos[:2] - socket_pos[:2])), float(peg_pos[2] - socket_pos[2])
+        tilt = float(np.arccos(min(abs(axis_z), 1.0)))
+        if self.is_success(physics):
+            label = "inserted"
+        elif tilt > np.pi / 4:
+            label = "dropped or knocked over"
+        elif offset > self.socket.outer_half_width:
+            label = "not over the socket"
+        elif height < 0.002:
+            label = "at the bottom, misaligned"
+        elif height < props.HOLE_DEPTH - 0.001 and offset < 0.002:  # inside the hole, not pressed into its rim
+            label = "stuck part-way in the hole"
+        else:
+            label = "on or above the socket"
+        return dict(outcome=label, peg_offset_xy=offset, peg_height=height, peg_tilt=tilt)
+
     @property
     def step_count(self) -> int:
         return self._step

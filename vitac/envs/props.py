@@ -64,6 +64,7 @@ class Socket(composer.Entity):
         half_depth = 0.5 * HOLE_DEPTH
         floor_half = SOCKET_HEIGHT - HOLE_DEPTH
         outer = max(hole_x, hole_y) + wall
+        self.outer_half_width = outer
         common = dict(contype=collision.WORLD, conaffinity=collision.WORLD_AFFINITY, friction=(friction, 0.005, 0.0001),
                       rgba=rgba, condim=4, priority=1, solref=(contact_timeconst, 1.0), solimp=SOCKET_SOLIMP)
         self.body.add("geom", name="floor", type="box", size=(outer, outer, 0.5 * floor_half),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import numpy as np
 import torch
@@ -32,7 +33,8 @@ def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = T
             for i in np.flatnonzero((terminated | truncated) & ~done):
                 env_info = info["env_infos"][i]
                 results.append(dict(success=bool(env_info["success"]), steps_to_success=int(env_info["steps_to_success"]),
-                                    keypoint_distance=float(env_info["keypoint_distance"])))
+                                    keypoint_distance=float(env_info["keypoint_distance"]),
+                                    **{k: env_info[k] for k in ("outcome", "peg_offset_xy", "peg_height", "peg_tilt")}))
             done |= terminated | truncated
     return summarize(results[:episodes])
 
@@ -51,6 +53,8 @@ def summarize(results: list[dict]) -> dict:
     successes = sum(r["success"] for r in results)
     steps = [r["steps_to_success"] for r in results if r["success"] and r["steps_to_success"] >= 0]
     low, high = wilson_interval(successes, len(results))
+    outcomes = Counter(r["outcome"] for r in results if "outcome" in r)
     return dict(episodes=len(results), success_rate=successes / max(len(results), 1), success_ci95=[low, high],
+                outcomes=dict(outcomes.most_common()),
                 steps_to_success_mean=float(np.mean(steps)) if steps else None,
                 steps_to_success=steps, episodes_detail=results)
