@@ -177,6 +177,20 @@ def test_episode_end_reports_where_the_peg_ended():
     assert outcomes["down"]["outcome"] == "dropped or knocked over" and outcomes["down"]["peg_tilt"] > 1.0
 
 
+def test_diverged_physics_ends_the_episode_as_a_failed_termination():
+    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e.reset(seed=1)
+    e.step(np.zeros(6))
+    e.physics.data.qvel[:] = 1e12  # what a blown-up contact leaves behind
+    _, reward, terminated, truncated, info = e.step(np.zeros(6))
+    assert terminated and not truncated and reward == 0.0
+    assert info["outcome"] == "physics diverged" and not info["success"]
+    obs, _ = e.reset(seed=1)  # and the next episode is healthy
+    _, _, terminated, _, _ = e.step(np.zeros(6))
+    e.close()
+    assert np.isfinite(obs["proprio"]).all() and not terminated
+
+
 def test_vector_env_workers_match_in_process_and_autoreset_same_step():
     cfg = {"observations": ["proprio", "critic_state"], "episode_steps": 5}
     actions = np.random.default_rng(0).uniform(-1, 1, (7, 4, 6))

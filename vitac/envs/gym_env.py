@@ -76,6 +76,8 @@ class InsertionEnv(gym.Env):
         info = self._info()
         if self._needs_reset:  # how the episode ended, for evaluation reports
             info.update(self._env.task.outcome(self._env.physics))
+            if terminated:  # the task only ends episodes by time-out: composer ended a diverged simulation
+                info.update(outcome="physics diverged", success=False)
         return dict(timestep.observation), float(timestep.reward), bool(terminated), bool(truncated), info
 
     def render(self):
