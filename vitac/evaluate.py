@@ -13,6 +13,7 @@ import math
 from pathlib import Path
 
 import hydra
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.envs.config import InsertionConfig
@@ -48,6 +49,9 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
     if socket_obs_noise is not None:
         settings["randomization"]["socket_obs_noise"] = socket_obs_noise
     InsertionConfig.from_dict(settings)  # refuse a bad override before any simulation
+    # One thread for batch-4 inference: the env workers need the cores. Beside a training run, 16 episodes took
+    # 203 s with torch's default 2 threads (OpenMP spinning against the workers) and 25 s with 1.
+    torch.set_num_threads(1)
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed)
     try:
         summary = run_episodes(policy, envs, episodes, seed, deterministic=deterministic)
