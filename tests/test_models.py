@@ -100,6 +100,22 @@ def test_symmetry_loss_is_zero_for_a_mirrored_pair_and_positive_otherwise():
     assert (SymmetryRegularizer.per_sample(enc(left), enc, left.flip(-1)) > 0).all()
 
 
+def test_sigmoid_log_std_bound_starts_at_init_and_keeps_a_gradient_past_the_bound():
+    head = RecurrentActorHead(4, log_std_min=-2.0, log_std_max=0.5, log_std_init=-0.3, log_std_bound="sigmoid")
+    _, log_std, _, _ = head(torch.zeros(2, 1, 4), head.initial_state(1), torch.zeros(2, 1))
+    assert torch.allclose(log_std, torch.full_like(log_std, -0.3), atol=1e-6)
+    clamped = RecurrentActorHead(4, log_std_min=-2.0, log_std_max=0.5)
+    for h in (head, clamped):
+        with torch.no_grad():
+            h.log_std.bias.fill_(3.0)  # past the maximum
+        _, log_std, _, _ = h(torch.zeros(2, 1, 4), h.initial_state(1), torch.zeros(2, 1))
+        log_std.sum().backward()
+    assert head.log_std.bias.grad.abs().min() > 0 and clamped.log_std.bias.grad.abs().max() == 0
+    assert float(head(torch.zeros(1, 1, 4), head.initial_state(1), torch.zeros(1, 1))[1].max()) < 0.5
+    with pytest.raises(ValueError, match="log_std_bound"):
+        RecurrentActorHead(4, log_std_bound="tanh")
+
+
 def test_log_std_is_clamped():
     head = RecurrentActorHead(4, log_std_min=-2.0, log_std_max=0.5)
     with torch.no_grad():

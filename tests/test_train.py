@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from tests.conftest import CONF, compose_config
 from vitac.evaluate import evaluate, load_policy
@@ -77,6 +78,22 @@ def test_resuming_without_the_curriculum_restores_the_configured_ranges(tmp_path
 
     assert env_scales(tmp_path / "kept", []) == {0.0}  # exact resume keeps the curriculum's stage
     assert env_scales(tmp_path / "off", ["algo.curriculum.enabled=false"]) == {1.0}
+
+
+def test_init_ckpt_starts_a_new_run_from_another_runs_weights(tmp_path):
+    base = ["preset=smoke", "obs=privileged", "algo.iterations=1"]
+    first = train(compose_config(base, output_dir=tmp_path / "first"))
+    source = load_checkpoint(first["checkpoint"])["state_dict"]
+    warm = train(compose_config(base + ["seed=1", f"init_ckpt={first['checkpoint']}", "init_exclude=[policy.head.log_std]",
+                                        "algo.lr=1e-12"], output_dir=tmp_path / "warm"))
+    fresh = train(compose_config(base + ["seed=1", "algo.lr=1e-12"], output_dir=tmp_path / "fresh"))
+    warm_state, fresh_state = (load_checkpoint(r["checkpoint"])["state_dict"] for r in (warm, fresh))
+    k = "policy.head.mean.weight"
+    assert torch.allclose(warm_state[k], source[k], atol=1e-6) and not torch.allclose(fresh_state[k], source[k])
+    # The excluded layer keeps its fresh initialisation (zero weights, bias log_std_init).
+    assert torch.allclose(warm_state["policy.head.log_std.weight"], fresh_state["policy.head.log_std.weight"], atol=1e-6)
+    with pytest.raises(ValueError, match="init_ckpt=.*does not fit"):
+        train(compose_config(SMOKE + [f"init_ckpt={first['checkpoint']}"], output_dir=tmp_path / "bad"))
 
 
 def test_resume_without_checkpoint_fails_clearly(tmp_path):

@@ -103,6 +103,8 @@ def train(cfg: DictConfig) -> dict:
         module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
                      rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads,
                      run_config=resolved, curriculum=curriculum, **algo)
+        if cfg.init_ckpt:
+            load_weights(module, cfg.init_ckpt, list(cfg.init_exclude))
         if cfg.critic_ckpt:
             load_critic(module, cfg.critic_ckpt)
         # Our checkpoints carry environment and RNG states (numpy objects): they are our own files.
@@ -120,6 +122,18 @@ def train(cfg: DictConfig) -> dict:
     if result["wandb"]:
         print(f"  wandb:      {result['wandb']}  (offline; `wandb sync {out}/wandb/offline-run-*` to upload)")
     return result
+
+
+def load_weights(module: PPO, path: str, exclude: list) -> None:
+    """Warm start: every tensor of another run's checkpoint except those under an `exclude` prefix."""
+    state = load_checkpoint(path, key="init_ckpt")["state_dict"]
+    own = module.state_dict()
+    picked = {k: v for k, v in state.items() if not any(k.startswith(prefix) for prefix in exclude)}
+    mismatched = [k for k, v in picked.items() if k not in own or own[k].shape != v.shape]
+    if mismatched:
+        raise ValueError(f"init_ckpt={path!r} does not fit this policy: {mismatched[:5]} differ in name or shape")
+    module.load_state_dict(picked, strict=False)
+    log.info("weights from %s (%d tensors; left out: %s)", path, len(picked), sorted(set(state) - set(picked)))
 
 
 def load_critic(module: PPO, path: str) -> None:

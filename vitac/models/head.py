@@ -25,24 +25,32 @@ class RecurrentActorHead(nn.Module):
         action_dim: action size (6).
         hidden, layers: LSTM size.
         units: MLP widths.
-        log_std_min, log_std_max: clamp of the state-dependent log standard deviation.
-        log_std_init: bias of the log-std layer at initialisation (TacSL's 0).
+        log_std_min, log_std_max: bounds of the state-dependent log standard deviation.
+        log_std_init: the log standard deviation at initialisation (TacSL's 0).
+        log_std_bound: "clamp" (hard: no gradient once the layer's output passes a bound, so a log-std that
+            PPO pushed past the maximum stays there) or "sigmoid" (min + (max - min) * sigmoid(x): a gradient
+            everywhere).
     """
 
     def __init__(self, in_dim: int, action_dim: int = 6, hidden: int = 256, layers: int = 2,
                  units=(256, 128, 64), log_std_min: float = -5.0, log_std_max: float = 1.0,
-                 log_std_init: float = 0.0):
+                 log_std_init: float = 0.0, log_std_bound: str = "clamp"):
         super().__init__()
         if log_std_min >= log_std_max:
             raise ValueError(f"head.log_std_min={log_std_min!r} is not allowed: expected less than "
                              f"head.log_std_max={log_std_max!r}")
+        if log_std_bound not in ("clamp", "sigmoid"):
+            raise ValueError(f"head.log_std_bound={log_std_bound!r} is not allowed: expected 'clamp' or 'sigmoid'")
+        if log_std_bound == "sigmoid" and not log_std_min < log_std_init < log_std_max:
+            raise ValueError(f"head.log_std_init={log_std_init!r} is not allowed with log_std_bound='sigmoid': "
+                             f"expected a number strictly between {log_std_min} and {log_std_max}")
         self.lstm = nn.LSTM(in_dim, hidden, num_layers=layers)
         self.mlp, d = mlp(hidden, units)
         self.mean = nn.Linear(d, action_dim)
         self.log_std = nn.Linear(d, action_dim)
         self.value = nn.Linear(d, 1)
         self.hidden, self.layers = hidden, layers
-        self.log_std_min, self.log_std_max = log_std_min, log_std_max
+        self.log_std_min, self.log_std_max, self.log_std_bound = log_std_min, log_std_max, log_std_bound
         for name, p in self.lstm.named_parameters():  # cleanrl's LSTM init
             if "bias" in name:
                 nn.init.constant_(p, 0.0)
@@ -51,6 +59,9 @@ class RecurrentActorHead(nn.Module):
         nn.init.orthogonal_(self.mean.weight, 0.01)
         nn.init.zeros_(self.mean.bias)
         nn.init.zeros_(self.log_std.weight)
+        if log_std_bound == "sigmoid":  # the bias whose bounded value is log_std_init
+            fraction = (log_std_init - log_std_min) / (log_std_max - log_std_min)
+            log_std_init = float(torch.logit(torch.tensor(fraction)))
         nn.init.constant_(self.log_std.bias, log_std_init)
 
     def initial_state(self, batch: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -63,7 +74,7 @@ class RecurrentActorHead(nn.Module):
         if features.shape[0] == 1:  # one step (rollout, evaluation): fused cells beat the sequence kernel
             out, (h, c) = self._lstm_step(features[0], h, c, 1.0 - episode_starts[0].float())
             x = self.mlp(out.unsqueeze(0))
-            log_std = self.log_std(x).clamp(self.log_std_min, self.log_std_max)
+            log_std = self._bounded_log_std(x)
             return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
         # Run the LSTM over whole segments between the times at which any sequence starts an episode,
         # masking the state only there (rl_games' RnnWithDones): one call instead of one per step.
@@ -75,9 +86,15 @@ class RecurrentActorHead(nn.Module):
             out, (h, c) = self.lstm(features[begin:end], (h * keep, c * keep))
             outputs.append(out)
         x = self.mlp(torch.cat(outputs, dim=0))
-        log_std = self.log_std(x).clamp(self.log_std_min, self.log_std_max)
+        log_std = self._bounded_log_std(x)
         return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
 
+
+    def _bounded_log_std(self, x: torch.Tensor) -> torch.Tensor:
+        raw = self.log_std(x)
+        if self.log_std_bound == "sigmoid":
+            return self.log_std_min + (self.log_std_max - self.log_std_min) * torch.sigmoid(raw)
+        return raw.clamp(self.log_std_min, self.log_std_max)
 
     def _lstm_step(self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor, keep: torch.Tensor):
         """One time step through every layer with torch.lstm_cell and nn.LSTM's own weights.
