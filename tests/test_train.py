@@ -110,6 +110,9 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
     assert report["socket_obs_noise"] == 0.005
     assert sum(report["outcomes"].values()) == 2 and len(report["final_peg"]) == 2
+    table = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json")], check=True, cwd=ROOT,
+                           capture_output=True, text=True).stdout
+    assert sum(int(line.split("|")[3]) for line in table.splitlines()[2:]) == 2
     noiseless = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "n.json"),
                          socket_obs_noise=0.0)
     assert noiseless["socket_obs_noise"] == 0.0
