@@ -177,6 +177,21 @@ def test_episode_end_reports_where_the_peg_ended():
     assert outcomes["down"]["outcome"] == "dropped or knocked over" and outcomes["down"]["peg_tilt"] > 1.0
 
 
+def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis():
+    rewards = []
+    for scale in (0.0, 2.0):
+        e = InsertionEnv({"observations": ["proprio"], "lateral_reward_scale": scale}, seed=0)
+        e.reset(seed=5)
+        _, reward, *_ = e.step(np.zeros(6))
+        task, physics = e.task, e.physics
+        offset = np.linalg.norm(physics.data.xpos[task._ids["peg_body"]][:2] - task.socket_pos(physics)[:2])
+        e.close()
+        rewards.append(reward)
+    assert offset > 0.01 and rewards[1] == pytest.approx(rewards[0] - 2.0 * offset)
+    with pytest.raises(ValueError, match=r"env\.lateral_reward_scale"):
+        InsertionConfig.from_dict({"lateral_reward_scale": -1.0})
+
+
 def test_diverged_physics_ends_the_episode_as_a_failed_termination():
     e = InsertionEnv({"observations": ["proprio"]}, seed=0)
     e.reset(seed=1)

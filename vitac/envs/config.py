@@ -87,6 +87,9 @@ class InsertionConfig:
     keypoint_reward_scale: float = 0.1
     action_gradient_penalty_scale: float = 0.001
     use_shaped_keypoint_reward: bool = True
+    # vitac's optional shaping (0: TacSL's reward): minus this times the peg's horizontal distance (m) from the
+    # hole axis, every step. TacSL's keypoint distance barely changes with it while the peg is above the hole.
+    lateral_reward_scale: float = 0.0
     observations: list = field(default_factory=lambda: list(OBSERVATIONS))
     randomization: Randomization = field(default_factory=Randomization)
 
@@ -125,7 +128,8 @@ class InsertionConfig:
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:
                 _fail(f"env.{key}", value, "a number > 0")
         for key in ("peg_friction", "socket_friction", "pad_friction", "tactile_kt", "tactile_mu", "joint_damping",
-                    "finger_kd", "taxel_margin", "keypoint_reward_scale", "action_gradient_penalty_scale"):
+                    "finger_kd", "taxel_margin", "keypoint_reward_scale", "action_gradient_penalty_scale",
+                    "lateral_reward_scale"):
             value = getattr(self, key)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 _fail(f"env.{key}", value, "a number >= 0")

@@ -252,7 +252,11 @@ class InsertionTask(composer.Task):
             if not centred and peg_pos[2] < socket_top[2]:
                 kp *= 10.0
         kp_exp = 1.0 / (np.exp(-50.0 * distance) + 0.0001 + np.exp(50.0 * distance))
-        return cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
+        reward = cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
+        if cfg.lateral_reward_scale:
+            peg_xy = physics.data.xpos[self._ids["peg_body"]][:2]
+            reward -= cfg.lateral_reward_scale * float(np.linalg.norm(peg_xy - self.socket_pos(physics)[:2]))
+        return reward
 
     # ------------------------------------------------------------------------------------ task state
     def socket_pos(self, physics) -> np.ndarray:
