@@ -245,18 +245,13 @@ class InsertionTask(composer.Task):
         cfg = self.config
         distance = self.keypoint_distance(physics)
         kp = -distance
-        if cfg.use_shaped_keypoint_reward:
-            peg_pos = physics.data.xpos[self._ids["peg_body"]]
-            socket_top = self.socket_pos(physics) + np.array([0.0, 0.0, props.HOLE_DEPTH])
-            centred = np.linalg.norm(peg_pos[:2] - socket_top[:2]) < self.peg_geometry.half_x
-            if not centred and peg_pos[2] < socket_top[2]:
-                kp *= 10.0
+        offset, height = self.peg_offset(physics)
+        centred = offset < self.peg_geometry.half_x
+        if cfg.use_shaped_keypoint_reward and not centred and height < props.HOLE_DEPTH:  # beside the hole, below its top
+            kp *= 10.0
         kp_exp = 1.0 / (np.exp(-50.0 * distance) + 0.0001 + np.exp(50.0 * distance))
         reward = cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
-        if cfg.lateral_reward_scale:
-            peg_xy = physics.data.xpos[self._ids["peg_body"]][:2]
-            reward -= cfg.lateral_reward_scale * float(np.linalg.norm(peg_xy - self.socket_pos(physics)[:2]))
-        return reward
+        return reward - cfg.lateral_reward_scale * offset
 
     # ------------------------------------------------------------------------------------ task state
     def socket_pos(self, physics) -> np.ndarray:
@@ -285,14 +280,17 @@ class InsertionTask(composer.Task):
     def is_success(self, physics) -> bool:
         return self.keypoint_distance(physics) < self.config.success_threshold
 
+    def peg_offset(self, physics) -> tuple[float, float]:
+        """The peg's bottom-face centre relative to the goal: horizontal distance from the hole axis and height
+        above the hole floor (m)."""
+        delta = physics.data.xpos[self._ids["peg_body"]] - self.socket_pos(physics)
+        return float(np.hypot(delta[0], delta[1])), float(delta[2])
+
     def outcome(self, physics) -> dict:
-        """Where the peg is relative to the goal (its bottom-face centre's horizontal offset and height above the
-        hole floor, m; its tilt, rad) and what that means, for reading why episodes fail."""
-        peg_pos = physics.data.xpos[self._ids["peg_body"]]
-        axis_z = physics.data.xmat[self._ids["peg_body"]][8]
-        socket_pos = self.socket_pos(physics)
-        offset, height = float(np.linalg.norm(peg_pos[:2] - socket_pos[:2])), float(peg_pos[2] - socket_pos[2])
-        tilt = float(np.arccos(min(abs(axis_z), 1.0)))
+        """Where the peg is relative to the goal (`peg_offset`, and its tilt, rad) and what that means, for
+        reading why episodes fail."""
+        offset, height = self.peg_offset(physics)
+        tilt = float(np.arccos(min(abs(physics.data.xmat[self._ids["peg_body"]][8]), 1.0)))
         if self.is_success(physics):
             label = "inserted"
         elif tilt > np.pi / 4:
