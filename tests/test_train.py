@@ -113,6 +113,9 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     table = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json")], check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout
     assert sum(int(line.split("|")[3]) for line in table.splitlines()[2:]) == 2
+    spread = subprocess.run([sys.executable, "tools/log_std.py", run["checkpoint"], "--episodes", "1"], check=True,
+                            cwd=ROOT, capture_output=True, text=True).stdout
+    assert "past head.log_std_max=1.0: 0.0% (bound: clamp)" in spread  # a fresh policy's log-std starts at 0
     noiseless = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "n.json"),
                          socket_obs_noise=0.0)
     assert noiseless["socket_obs_noise"] == 0.0
