@@ -166,3 +166,19 @@ def test_one_step_lstm_path_matches_the_sequence_path():
     assert torch.allclose(torch.cat(means), seq_mean, atol=1e-6)
     assert torch.allclose(torch.cat(values), seq_value, atol=1e-6)
     assert torch.allclose(state[0], seq_state[0], atol=1e-6) and torch.allclose(state[1], seq_state[1], atol=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["param", "fixed"])
+def test_state_independent_log_std_is_the_same_for_every_input_and_trained_only_in_param_mode(mode):
+    head = RecurrentActorHead(4, log_std_init=-1.0, log_std_mode=mode)
+    features = torch.randn(3, 2, 4)
+    _, log_std, _, _ = head(features, head.initial_state(2), torch.zeros(3, 2))
+    assert log_std.shape == (3, 2, 6) and torch.allclose(log_std, torch.full_like(log_std, -1.0))
+    trained = {name for name, _ in head.named_parameters()}
+    assert ("log_std" in trained) == (mode == "param")
+    assert "log_std" in head.state_dict()  # saved either way, so checkpoints rebuild the same policy
+    if mode == "param":
+        log_std.sum().backward()
+        assert torch.all(head.log_std.grad == 3 * 2)
+    with pytest.raises(ValueError, match="log_std_mode"):
+        RecurrentActorHead(4, log_std_mode="learned")

@@ -1,4 +1,4 @@
-"""Recurrent actor-critic head: 2-layer LSTM -> ELU MLP -> Gaussian mean, clamped log-std, value."""
+"""Recurrent actor-critic head: 2-layer LSTM -> ELU MLP -> Gaussian mean, bounded log-std, value."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ def mlp(in_dim: int, units, activation=nn.ELU) -> tuple[nn.Sequential, int]:
 
 
 class RecurrentActorHead(nn.Module):
-    """LSTM (hidden, layers) -> MLP -> mean, log-std (clamped to [log_std_min, log_std_max]) and value.
+    """LSTM (hidden, layers) -> MLP -> mean, log-std (bounded to [log_std_min, log_std_max]) and value.
 
     The recurrent state (h, c), each (layers, B, hidden), is passed in and out; it is zeroed at every
     step whose `episode_start` flag is set, before that step's input is consumed.
@@ -25,8 +25,12 @@ class RecurrentActorHead(nn.Module):
         action_dim: action size (6).
         hidden, layers: LSTM size.
         units: MLP widths.
-        log_std_min, log_std_max: bounds of the state-dependent log standard deviation.
+        log_std_min, log_std_max: bounds of the log standard deviation.
         log_std_init: the log standard deviation at initialisation (TacSL's 0).
+        log_std_mode: where the log-std comes from: "state" (a linear layer on the features, TacSL's
+            rl_games `fixed_sigma: False`), "param" (one trained value per action dimension, whatever the
+            state: rl_games' `fixed_sigma: True`, cleanrl) or "fixed" (log_std_init, never trained: the mean
+            action alone has to earn the reward).
         log_std_bound: "clamp" (hard: no gradient once the layer's output passes a bound, so a log-std that
             PPO pushed past the maximum stays there) or "sigmoid" (min + (max - min) * sigmoid(x): a gradient
             everywhere).
@@ -34,23 +38,25 @@ class RecurrentActorHead(nn.Module):
 
     def __init__(self, in_dim: int, action_dim: int = 6, hidden: int = 256, layers: int = 2,
                  units=(256, 128, 64), log_std_min: float = -5.0, log_std_max: float = 1.0,
-                 log_std_init: float = 0.0, log_std_bound: str = "clamp"):
+                 log_std_init: float = 0.0, log_std_bound: str = "clamp", log_std_mode: str = "state"):
         super().__init__()
         if log_std_min >= log_std_max:
             raise ValueError(f"head.log_std_min={log_std_min!r} is not allowed: expected less than "
                              f"head.log_std_max={log_std_max!r}")
         if log_std_bound not in ("clamp", "sigmoid"):
             raise ValueError(f"head.log_std_bound={log_std_bound!r} is not allowed: expected 'clamp' or 'sigmoid'")
+        if log_std_mode not in ("state", "param", "fixed"):
+            raise ValueError(f"head.log_std_mode={log_std_mode!r} is not allowed: expected 'state', 'param' or 'fixed'")
         if log_std_bound == "sigmoid" and not log_std_min < log_std_init < log_std_max:
             raise ValueError(f"head.log_std_init={log_std_init!r} is not allowed with log_std_bound='sigmoid': "
                              f"expected a number strictly between {log_std_min} and {log_std_max}")
         self.lstm = nn.LSTM(in_dim, hidden, num_layers=layers)
         self.mlp, d = mlp(hidden, units)
         self.mean = nn.Linear(d, action_dim)
-        self.log_std = nn.Linear(d, action_dim)
         self.value = nn.Linear(d, 1)
         self.hidden, self.layers = hidden, layers
         self.log_std_min, self.log_std_max, self.log_std_bound = log_std_min, log_std_max, log_std_bound
+        self.log_std_mode = log_std_mode
         for name, p in self.lstm.named_parameters():  # cleanrl's LSTM init
             if "bias" in name:
                 nn.init.constant_(p, 0.0)
@@ -58,11 +64,17 @@ class RecurrentActorHead(nn.Module):
                 nn.init.orthogonal_(p, 1.0)
         nn.init.orthogonal_(self.mean.weight, 0.01)
         nn.init.zeros_(self.mean.bias)
-        nn.init.zeros_(self.log_std.weight)
-        if log_std_bound == "sigmoid":  # the bias whose bounded value is log_std_init
+        if log_std_bound == "sigmoid":  # the raw value whose bounded value is log_std_init
             fraction = (log_std_init - log_std_min) / (log_std_max - log_std_min)
             log_std_init = float(torch.logit(torch.tensor(fraction)))
-        nn.init.constant_(self.log_std.bias, log_std_init)
+        if log_std_mode == "state":
+            self.log_std = nn.Linear(d, action_dim)
+            nn.init.zeros_(self.log_std.weight)
+            nn.init.constant_(self.log_std.bias, log_std_init)
+        elif log_std_mode == "param":
+            self.log_std = nn.Parameter(torch.full((action_dim,), log_std_init))
+        else:  # a buffer: saved with the weights, never handed to the optimizer
+            self.register_buffer("log_std", torch.full((action_dim,), log_std_init))
 
     def initial_state(self, batch: int, device=None) -> tuple[torch.Tensor, torch.Tensor]:
         zeros = torch.zeros(self.layers, batch, self.hidden, device=device)
@@ -89,9 +101,8 @@ class RecurrentActorHead(nn.Module):
         log_std = self._bounded_log_std(x)
         return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
 
-
     def _bounded_log_std(self, x: torch.Tensor) -> torch.Tensor:
-        raw = self.log_std(x)
+        raw = self.log_std(x) if self.log_std_mode == "state" else self.log_std.expand(*x.shape[:-1], -1)
         if self.log_std_bound == "sigmoid":
             return self.log_std_min + (self.log_std_max - self.log_std_min) * torch.sigmoid(raw)
         return raw.clamp(self.log_std_min, self.log_std_max)
