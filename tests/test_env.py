@@ -192,6 +192,28 @@ def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis()
         InsertionConfig.from_dict({"lateral_reward_scale": -1.0})
 
 
+def test_success_reward_is_paid_exactly_at_the_steps_where_the_success_check_holds():
+    from vitac.envs.oracle import OracleController
+
+    runs = []
+    for scale in (0.0, 0.5):
+        e = InsertionEnv({"observations": ["proprio"], "success_reward_scale": scale}, seed=0)
+        e.reset(seed=3)
+        oracle, rewards, held = OracleController(e.task), [], []
+        for _ in range(150):  # the oracle inserts within ~100 steps (test above)
+            _, reward, *_, info = e.step(oracle(e.physics))
+            rewards.append(reward)
+            held.append(info["keypoint_distance"] < e.task.config.success_threshold)
+        e.close()
+        runs.append((np.array(rewards), np.array(held)))
+    (plain, held), (bonus, held_again) = runs
+    np.testing.assert_array_equal(held, held_again)  # the bonus does not change the simulation
+    assert held.any() and not held.all()
+    np.testing.assert_allclose(bonus - plain, 0.5 * held, atol=1e-12)
+    with pytest.raises(ValueError, match=r"env\.success_reward_scale"):
+        InsertionConfig.from_dict({"success_reward_scale": -0.1})
+
+
 def test_diverged_physics_ends_the_episode_as_a_failed_termination():
     e = InsertionEnv({"observations": ["proprio"]}, seed=0)
     e.reset(seed=1)

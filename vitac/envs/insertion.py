@@ -251,6 +251,7 @@ class InsertionTask(composer.Task):
             kp *= 10.0
         kp_exp = 1.0 / (np.exp(-50.0 * distance) + 0.0001 + np.exp(50.0 * distance))
         reward = cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
+        reward += cfg.success_reward_scale * float(distance < cfg.success_threshold)
         return reward - cfg.lateral_reward_scale * offset
 
     # ------------------------------------------------------------------------------------ task state
