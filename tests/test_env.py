@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict
+
 import numpy as np
 import pytest
 
-from vitac.envs.config import InsertionConfig
+from vitac.envs.config import InsertionConfig, Randomization
 from vitac.envs.gym_env import InsertionEnv
 from vitac.envs.vector_env import InsertionVectorEnv
 
@@ -190,6 +192,25 @@ def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis()
     assert offset > 0.01 and rewards[1] == pytest.approx(rewards[0] - 2.0 * offset)
     with pytest.raises(ValueError, match=r"env\.lateral_reward_scale"):
         InsertionConfig.from_dict({"lateral_reward_scale": -1.0})
+
+
+def test_randomizing_one_factor_only_varies_that_factor_between_episodes():
+    only = Randomization().only(["ee_pos"])
+    assert only.ee_pos_low == [0.4, -0.1, 0.1] and only.socket_pos_low == only.socket_pos_high == [0.5, 0.0, 0.01]
+    assert only.socket_obs_noise == 0.0 and only.peg_in_hand_tilt == [0.0, 0.0]
+    assert Randomization().only(["socket_obs_noise"]).socket_obs_noise == 0.005
+    e = InsertionEnv({"observations": ["proprio"], "randomization": asdict(only)}, seed=0)
+    starts = []
+    for seed in (1, 2):
+        obs, _ = e.reset(seed=seed)
+        starts.append(obs["proprio"])
+    e.close()
+    hand, socket = slice(0, 3), slice(7, 10)  # proprio: tcp position, hand quaternion, observed socket position...
+    assert np.abs(starts[0][hand] - starts[1][hand]).max() > 0.005
+    np.testing.assert_array_equal(starts[0][socket], starts[1][socket])
+    np.testing.assert_allclose(starts[0][socket], [0.5, 0.0, 0.01], atol=1e-6)
+    with pytest.raises(ValueError, match="randomize_only"):
+        Randomization().only(["ee_position"])
 
 
 def test_success_reward_is_paid_exactly_at_the_steps_where_the_success_check_holds():

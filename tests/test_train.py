@@ -121,6 +121,12 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     assert noiseless["socket_obs_noise"] == 0.0
     with pytest.raises(ValueError, match="socket_obs_noise"):
         evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, socket_obs_noise=-1.0)
+    tilt_only = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5,
+                         randomize_only=["peg_in_hand_tilt"])
+    assert tilt_only["randomize_only"] == ["peg_in_hand_tilt"] and tilt_only["socket_obs_noise"] == 0.0
+    assert Path(run["checkpoint"]).with_suffix(".eval.only-peg_in_hand_tilt.json").exists()
+    with pytest.raises(ValueError, match="randomize_only"):
+        evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, randomize_only=["tilt"])
     # Sampled actions: reproducible for a seed, and not the mean action.
     sampled = [evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / f"s{i}.json"),
                         deterministic=False) for i in range(2)]

@@ -1,5 +1,6 @@
 """The actor's log-std layer output before its bound, on a checkpoint's own deterministic episodes: is the
-exploration noise stuck past the bound (where a hard clamp passes no gradient)?
+exploration noise stuck past the bound (where a hard clamp passes no gradient)? With `head.log_std_mode`
+param or fixed, the log-std is one value per action dimension and is printed as it is.
 
     python tools/log_std.py <run>/checkpoints/last.ckpt [--episodes 3]
 
@@ -25,6 +26,10 @@ def main():
     torch.set_num_threads(1)
     policy, cfg, settings = load_policy(args.ckpt)
     policy.eval()
+    if policy.head.log_std_mode != "state":  # one value per action dimension, whatever the state
+        print(f"log-std ({policy.head.log_std_mode}, before its bound): " +
+              "  ".join(f"{v:6.2f}" for v in policy.head.log_std.tolist()))
+        return
     raw = []
     policy.head.log_std.register_forward_hook(lambda module, inputs, output: raw.append(output.reshape(-1, output.shape[-1])))
     env = InsertionEnv(settings)

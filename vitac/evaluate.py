@@ -16,7 +16,7 @@ import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from vitac.envs.config import InsertionConfig
+from vitac.envs.config import InsertionConfig, Randomization
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.rl.evaluation import run_episodes
 from vitac.train import build_policy_from_config, env_settings
@@ -38,16 +38,19 @@ def load_policy(ckpt: str | Path):
 
 def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None,
              randomization_scale: float | None = None, deterministic: bool = True,
-             socket_obs_noise: float | None = None) -> dict:
+             socket_obs_noise: float | None = None, randomize_only: list | None = None) -> dict:
     """Success statistics of the checkpoint's policy, deterministic (mean action) unless `deterministic` is
     false; the paper's randomization unless `randomization_scale` shrinks it (e.g. to the level a
-    curriculum reached) or `socket_obs_noise` replaces the socket observation noise (0: what the noise costs)."""
+    curriculum reached) or `socket_obs_noise` replaces the socket observation noise (0: what the noise costs);
+    `randomize_only` (names from RANDOMIZED_FACTORS) randomizes those factors alone, every other at its midpoint."""
     policy, cfg, settings = load_policy(ckpt)
     settings = dict(settings, randomization=dict(settings["randomization"]))
     if randomization_scale is not None:
         settings["randomization"]["scale"] = randomization_scale
     if socket_obs_noise is not None:
         settings["randomization"]["socket_obs_noise"] = socket_obs_noise
+    if randomize_only is not None:
+        settings["randomization"] = Randomization(**settings["randomization"]).only(list(randomize_only)).__dict__
     InsertionConfig.from_dict(settings)  # refuse a bad override before any simulation
     # One thread for batch-4 inference: the env workers need the cores. Beside a training run, 16 episodes took
     # 203 s with torch's default 2 threads (OpenMP spinning against the workers) and 25 s with 1.
@@ -60,13 +63,15 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
     report = dict(ckpt=str(ckpt), preset=cfg.preset.name, obs=cfg.obs.name, seed=seed,
                   randomization_scale=settings["randomization"]["scale"],
                   socket_obs_noise=settings["randomization"]["socket_obs_noise"],
+                  randomize_only=list(randomize_only) if randomize_only is not None else None,
                   policy="deterministic" if deterministic else "stochastic",
                   **{k: v for k, v in summary.items() if k != "episodes_detail"},
                   final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]],
                   final_peg=[dict(outcome=e["outcome"], offset_xy_mm=round(1000 * e["peg_offset_xy"], 2),
                                   height_mm=round(1000 * e["peg_height"], 2), tilt_deg=round(math.degrees(e["peg_tilt"]), 2))
                              for e in summary["episodes_detail"]])
-    target = Path(out) if out else Path(ckpt).with_suffix(".eval.json")
+    only = "" if randomize_only is None else ".only-" + "-".join(randomize_only)
+    target = Path(out) if out else Path(ckpt).with_suffix(f".eval{only}.json")
     target.write_text(json.dumps(report, indent=2))
     return report
 
@@ -78,7 +83,7 @@ def main(cfg: DictConfig) -> None:
     if not isinstance(cfg.deterministic, bool):
         raise ValueError(f"deterministic={cfg.deterministic!r} is not allowed: expected true or false")
     report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
-                      cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise)
+                      cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only)
     print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm", "final_peg")},
                      indent=2))
 

@@ -45,6 +45,35 @@ class Randomization:
     pad_damping: list = field(default_factory=lambda: [0.0, 1.0])
     joint_damping_noise: list = field(default_factory=lambda: [-1.5, 1.5])
 
+    def only(self, names) -> Randomization:
+        """A copy that randomizes only the named factors (RANDOMIZED_FACTORS): every other range collapses to
+        its midpoint and, unless named, the socket observation noise to 0. Which factor does a policy fail on?"""
+        unknown = [n for n in names if n not in RANDOMIZED_FACTORS]
+        if unknown or not names:
+            _fail("randomize_only", list(names), f"a non-empty list of {list(RANDOMIZED_FACTORS)}")
+        values = asdict(self)
+        for name, keys in RANDOMIZED_FACTORS.items():
+            if name in names:
+                continue
+            if name == "socket_obs_noise":
+                values[name] = 0.0
+            elif len(keys) == 2:  # per-axis [low...], [high...] lists
+                mid = [0.5 * (lo + hi) for lo, hi in zip(values[keys[0]], values[keys[1]], strict=True)]
+                values[keys[0]], values[keys[1]] = list(mid), list(mid)
+            else:
+                lo, hi = values[name]
+                values[name] = [0.5 * (lo + hi)] * 2
+        return Randomization(**values)
+
+
+# Each randomized factor of the paper's table and the Randomization fields that hold its range.
+RANDOMIZED_FACTORS = {
+    "ee_pos": ("ee_pos_low", "ee_pos_high"), "ee_rot": ("ee_rot_low", "ee_rot_high"),
+    "socket_pos": ("socket_pos_low", "socket_pos_high"), "peg_in_hand_depth": ("peg_in_hand_depth",),
+    "peg_in_hand_tilt": ("peg_in_hand_tilt",), "socket_obs_noise": ("socket_obs_noise",),
+    "pad_stiffness": ("pad_stiffness",), "pad_damping": ("pad_damping",), "joint_damping_noise": ("joint_damping_noise",),
+}
+
 
 @dataclass
 class InsertionConfig:
