@@ -135,6 +135,18 @@ def test_presets_compose_and_name_themselves(preset):
     assert algo["horizon"] % algo["seq_len"] == 0
 
 
+@pytest.mark.parametrize("experiment", sorted(p.stem for p in (Path(CONF) / "experiment").glob("*.yaml")))
+def test_experiments_compose_and_build_their_env_and_policy(experiment):
+    cfg = compose_config([f"experiment={experiment}"])
+    build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+
+
+def test_shaped_privileged_experiment_extends_the_privileged_one():
+    base, shaped = (compose_config([f"experiment={name}"]) for name in ("results_privileged_cpu", "results_privileged_cpu_shaped"))
+    assert shaped.algo == base.algo and shaped.obs == base.obs  # same budget, curriculum and observations
+    assert (shaped.head.log_std_mode, shaped.env.lateral_reward_scale, shaped.env.success_reward_scale) == ("param", 0.5, 0.1)
+
+
 @pytest.mark.parametrize("launcher,target", [("joblib_local", "JoblibLauncher"), ("slurm", "SlurmLauncher")])
 def test_launcher_configs_compose(launcher, target):
     from hydra import compose, initialize_config_dir
