@@ -232,7 +232,7 @@ class InsertionTask(composer.Task):
 
     def after_step(self, physics, random_state):
         self._step += 1
-        if self.first_success_step < 0 and self.keypoint_distance(physics) < self.config.success_threshold:
+        if self.first_success_step < 0 and self.is_success(physics):
             self.first_success_step = self._step
 
     def should_terminate_episode(self, physics):
@@ -251,7 +251,7 @@ class InsertionTask(composer.Task):
             kp *= 10.0
         kp_exp = 1.0 / (np.exp(-50.0 * distance) + 0.0001 + np.exp(50.0 * distance))
         reward = cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
-        reward += cfg.success_reward_scale * float(distance < cfg.success_threshold)
+        reward += cfg.success_reward_scale * float(self.is_success(physics))
         return reward - cfg.lateral_reward_scale * offset
 
     # ------------------------------------------------------------------------------------ task state
