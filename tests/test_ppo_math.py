@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from vitac.rl import losses
+from vitac.rl.lr_schedule import AdaptiveKLSchedule, make_lr_schedule
 
 
 def _gae(rewards, values, next_values, ends, gamma=0.9, lam=0.5):
@@ -92,3 +93,16 @@ def test_advantage_normalization_and_single_element_guard():
 def test_policy_loss_stays_finite_when_the_ratio_would_overflow():
     loss, kl, _ = losses.policy_loss(torch.tensor([500.0]), torch.tensor([0.0]), torch.tensor([-1.0]), clip=0.2)
     assert torch.isfinite(loss) and torch.isfinite(kl)
+
+
+def test_adaptive_lr_follows_rl_games_rule_within_bounds():
+    schedule = AdaptiveKLSchedule(kl_threshold=0.01)
+    assert schedule.update(1e-3, 0.03) == pytest.approx(1e-3 / 1.5)  # KL above twice the threshold
+    assert schedule.update(1e-3, 0.001) == pytest.approx(1.5e-3)  # under half of it
+    assert schedule.update(1e-3, 0.01) == 1e-3  # near it: unchanged
+    assert schedule.update(1.2e-6, 1.0) == 1e-6 and schedule.update(9e-3, 0.0) == 1e-2
+    assert make_lr_schedule("fixed", 0.01) is None
+    with pytest.raises(ValueError, match=r"algo.lr_schedule='cosine' is not allowed: expected one of fixed, adaptive"):
+        make_lr_schedule("cosine", 0.01)
+    with pytest.raises(ValueError, match=r"algo.kl_threshold=0.0 is not allowed"):
+        make_lr_schedule("adaptive", 0.0)

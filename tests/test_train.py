@@ -96,6 +96,21 @@ def test_init_ckpt_starts_a_new_run_from_another_runs_weights(tmp_path):
         train(compose_config(SMOKE + [f"init_ckpt={first['checkpoint']}"], output_dir=tmp_path / "bad"))
 
 
+def test_adaptive_lr_schedule_steps_after_every_minibatch_and_fixed_keeps_lr(tmp_path):
+    base = ["preset=smoke", "obs=privileged"]
+    lr = compose_config(base).algo.lr
+    steps = 2 * 2  # smoke: 2 mini-epochs of 2 minibatches per iteration
+    # With a threshold no KL comes near, the rate grows by 1.5 at every minibatch step (its other branches:
+    # test_adaptive_lr_follows_rl_games_rule_within_bounds).
+    run = train(compose_config(base + ["algo.lr_schedule=adaptive", "algo.kl_threshold=1e9"], output_dir=tmp_path / "a"))
+    logged = [float(r["charts/lr"]) for r in _rows(run["metrics_csv"]) if r.get("charts/lr")]
+    assert logged == pytest.approx([lr * 1.5 ** steps, lr * 1.5 ** (2 * steps)])
+    fixed = train(compose_config(base, output_dir=tmp_path / "f"))
+    assert [float(r["charts/lr"]) for r in _rows(fixed["metrics_csv"]) if r.get("charts/lr")] == pytest.approx([lr, lr])
+    with pytest.raises(ValueError, match="algo.lr_schedule='cosine' is not allowed"):
+        train(compose_config(base + ["algo.lr_schedule=cosine"], output_dir=tmp_path / "bad"))
+
+
 def test_resume_without_checkpoint_fails_clearly(tmp_path):
     with pytest.raises(FileNotFoundError, match="resume="):
         train(compose_config(SMOKE + [f"resume={tmp_path / 'nothing'}"], output_dir=tmp_path / "x"))

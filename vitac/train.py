@@ -18,6 +18,7 @@ from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.models.build import build_policy
 from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
+from vitac.rl.lr_schedule import make_lr_schedule
 from vitac.rl.ppo import PPO
 from vitac.utils.checkpoint import load_checkpoint
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
@@ -74,6 +75,7 @@ def train(cfg: DictConfig) -> dict:
     num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every, video_every = algo.pop("save_every"), algo.pop("eval_video_every")
+    lr_schedule = make_lr_schedule(algo.pop("lr_schedule"), algo.pop("kl_threshold"))
     curriculum_settings = algo.pop("curriculum")
     curriculum = None
     if curriculum_settings.pop("enabled"):
@@ -102,7 +104,7 @@ def train(cfg: DictConfig) -> dict:
     try:
         module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
                      rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads,
-                     run_config=resolved, curriculum=curriculum, **algo)
+                     run_config=resolved, curriculum=curriculum, lr_schedule=lr_schedule, **algo)
         if cfg.init_ckpt:
             load_weights(module, cfg.init_ckpt, list(cfg.init_exclude))
         if cfg.critic_ckpt:

@@ -14,6 +14,7 @@ from vitac.models.policy import VisuoTactilePolicy
 from vitac.rl import losses
 from vitac.rl.buffer import RolloutBuffer, check_batch_layout
 from vitac.rl.curriculum import RandomizationCurriculum
+from vitac.rl.lr_schedule import AdaptiveKLSchedule
 
 
 class _OneItem(Dataset):
@@ -43,6 +44,8 @@ class PPO(L.LightningModule):
         rollout_threads, update_threads: torch threads while collecting and while updating.
         run_config: the resolved run config, stored in checkpoints so evaluation can rebuild the policy.
         curriculum: optional schedule of the training envs' randomization scale.
+        lr_schedule: optional adaptive learning rate (rl_games' `adaptive`), updated after every minibatch step;
+            None keeps `lr` fixed (TacSL's actor). The current rate is saved in checkpoints with the optimizer.
     """
 
     def __init__(self, policy: VisuoTactilePolicy, envs, horizon: int = 512, seq_len: int = 128,
@@ -51,7 +54,8 @@ class PPO(L.LightningModule):
                  grad_norm: float = 1.0, entropy_coef: float = 0.0, bounds_loss_coef: float = 1e-4,
                  normalize_input: bool = True, normalize_value: bool = True, normalize_advantage: bool = True,
                  freeze_critic: bool = False, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
-                 run_config: dict | None = None, curriculum: RandomizationCurriculum | None = None):
+                 run_config: dict | None = None, curriculum: RandomizationCurriculum | None = None,
+                 lr_schedule: AdaptiveKLSchedule | None = None):
         super().__init__()
         check_batch_layout(horizon, envs.num_envs, seq_len, minibatch_size)
         self.automatic_optimization = False
@@ -64,6 +68,7 @@ class PPO(L.LightningModule):
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
         self.run_config = run_config
         self.curriculum = curriculum
+        self.lr_schedule = lr_schedule
         self.rollout_threads, self.update_threads = rollout_threads, update_threads
         if freeze_critic and policy.critic is not None:
             policy.critic.requires_grad_(False)
@@ -228,6 +233,10 @@ class PPO(L.LightningModule):
                     sums["skipped_updates"] = sums.get("skipped_updates", 0.0) + 1.0
                     continue
                 optimizer.step()
+                if self.lr_schedule is not None:
+                    lr = self.lr_schedule.update(optimizer.param_groups[0]["lr"], float(terms["approx_kl"]))
+                    for group in optimizer.param_groups:
+                        group["lr"] = lr
                 count += 1
                 for k in ("loss", "policy_loss", "value_loss", "entropy", "bounds_loss", "sym_loss", "approx_kl",
                           "clipfrac"):
@@ -238,6 +247,7 @@ class PPO(L.LightningModule):
         skipped = sums.pop("skipped_updates", 0.0)
         metrics.update({f"losses/{k}": v / max(count, 1) for k, v in sums.items()})
         metrics["losses/skipped_updates"] = skipped
+        metrics["charts/lr"] = optimizer.param_groups[0]["lr"]
         values, returns = self.buffer.values.flatten(), self.buffer.returns.flatten()
         metrics["losses/explained_variance"] = losses.explained_variance(values, returns)
         steps = hp["horizon"] * self.envs.num_envs
