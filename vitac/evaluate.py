@@ -38,7 +38,8 @@ def load_policy(ckpt: str | Path):
 
 def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None,
              randomization_scale: float | None = None, deterministic: bool = True,
-             socket_obs_noise: float | None = None, randomize_only: list | None = None) -> dict:
+             socket_obs_noise: float | None = None, randomize_only: list | None = None,
+             step_in_main: bool = True) -> dict:
     """Success statistics of the checkpoint's policy, deterministic (mean action) unless `deterministic` is
     false; the paper's randomization unless `randomization_scale` shrinks it (e.g. to the level a
     curriculum reached) or `socket_obs_noise` replaces the socket observation noise (0: what the noise costs);
@@ -55,7 +56,7 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
     # One thread for batch-4 inference: the env workers need the cores. Beside a training run, 16 episodes took
     # 203 s with torch's default 2 threads (OpenMP spinning against the workers) and 25 s with 1.
     torch.set_num_threads(1)
-    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed)
+    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed, step_in_main=step_in_main)
     try:
         summary = run_episodes(policy, envs, episodes, seed, deterministic=deterministic)
     finally:
@@ -83,7 +84,8 @@ def main(cfg: DictConfig) -> None:
     if not isinstance(cfg.deterministic, bool):
         raise ValueError(f"deterministic={cfg.deterministic!r} is not allowed: expected true or false")
     report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
-                      cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only)
+                      cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only,
+                      cfg.step_in_main)
     print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm", "final_peg")},
                      indent=2))
 

@@ -72,7 +72,7 @@ def train(cfg: DictConfig) -> dict:
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
     resolved = OmegaConf.to_container(cfg, resolve=True)
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
-    num_envs, num_workers = algo.pop("num_envs"), algo.pop("num_workers")
+    num_envs, num_workers, step_in_main = algo.pop("num_envs"), algo.pop("num_workers"), algo.pop("step_in_main")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every, video_every = algo.pop("save_every"), algo.pop("eval_video_every")
     lr_schedule = make_lr_schedule(algo.pop("lr_schedule"), algo.pop("kl_threshold"))
@@ -99,7 +99,8 @@ def train(cfg: DictConfig) -> dict:
                         callbacks=[checkpoints, best, evaluation, IterationProgressBar()], enable_progress_bar=False,
                         enable_model_summary=False, log_every_n_steps=1, num_sanity_val_steps=0,
                         deterministic=cfg.trainer.deterministic)
-    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0)
+    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0,
+                              step_in_main=step_in_main)
     log.info("env: %d envs in %d workers, observations %s", num_envs, num_workers, settings["observations"])
     try:
         module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
