@@ -1,5 +1,6 @@
 """Learning curves of one run from its metrics CSV: training success with the curriculum's randomization
-scale, held-out evaluation success, reward per step, all against env steps.
+scale, held-out evaluation success, reward per step and PPO's step size (approximate KL per iteration and
+learning rate), all against env steps.
 
     python tools/plot_run.py outputs/2026-11-25/10-00-00/csv/metrics.csv --out curves.png [--title ...]
         [--baseline other/metrics.csv --baseline-label "..."]
@@ -9,7 +10,8 @@ Several CSVs are one run's segments (a run resumed into another directory), in o
 where each later segment starts.
 
 `--baseline` overlays another run's curriculum scale on the first panel, to compare how fast two runs
-widen the randomization.
+widen the randomization. `--compare` overlays another run's (or branch's) training success, evaluations
+and KL in grey, e.g. two continuations of one checkpoint.
 """
 
 from __future__ import annotations
@@ -32,6 +34,18 @@ def column(rows, key):
     return out
 
 
+def read_segments(paths):
+    """The rows of one run's metrics CSVs in order, and the env steps at which each later segment starts."""
+    rows, resumes = [], []
+    for i, path in enumerate(paths):
+        with open(path) as f:
+            segment = list(csv.DictReader(f))
+        if i > 0 and segment:
+            resumes.append(float(segment[0]["charts/env_steps"]))
+        rows += segment
+    return rows, resumes
+
+
 def smooth(points, window: int):
     values = [v for _, v in points]
     return [(points[i][0], sum(values[max(0, i - window + 1):i + 1]) / len(values[max(0, i - window + 1):i + 1]))
@@ -45,20 +59,17 @@ def main():
     parser.add_argument("--title", default="")
     parser.add_argument("--baseline", type=Path, default=None, help="metrics CSV of a run to compare with")
     parser.add_argument("--baseline-label", default="baseline")
+    parser.add_argument("--compare", type=Path, nargs="+", default=None, help="metrics CSV(s) of a run to overlay")
+    parser.add_argument("--compare-label", default="other run")
     args = parser.parse_args()
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows, resumes = [], []
-    for i, path in enumerate(args.metrics):
-        with open(path) as f:
-            segment = list(csv.DictReader(f))
-        if i > 0 and segment:
-            resumes.append(float(segment[0]["charts/env_steps"]))
-        rows += segment
-    fig, axes = plt.subplots(1, 3, figsize=(14, 3.8))
+    rows, resumes = read_segments(args.metrics)
+    other = read_segments(args.compare)[0] if args.compare else []
+    fig, axes = plt.subplots(1, 4, figsize=(18, 3.8))
     for ax in axes:
         for steps in resumes:
             ax.axvline(steps, color="grey", lw=0.8, alpha=0.6)
@@ -73,17 +84,32 @@ def main():
         with open(args.baseline) as f:
             baseline = column(list(csv.DictReader(f)), "charts/randomization_scale")
         axes[0].plot(*zip(*baseline, strict=True), ":", color="grey", label=f"scale, {args.baseline_label}")
+    if column(other, "charts/success_rate"):
+        axes[0].plot(*zip(*smooth(column(other, "charts/success_rate"), 10), strict=True), color="grey",
+                     label=f"training, {args.compare_label}")
     axes[0].set(xlabel="env steps", ylabel="success rate", title="training (curriculum ranges)", ylim=(-0.02, 1.02))
     axes[0].legend(fontsize=7)
     evals = column(rows, "eval/success_rate")
     if evals:
-        axes[1].plot(*zip(*evals, strict=True), "o-")
+        axes[1].plot(*zip(*evals, strict=True), "o-", label="this run")
+    if column(other, "eval/success_rate"):
+        axes[1].plot(*zip(*column(other, "eval/success_rate"), strict=True), "o-", color="grey", label=args.compare_label)
+        axes[1].legend(fontsize=7)
     axes[1].set(xlabel="env steps", ylabel="success rate", title="held-out evaluation (paper randomization)",
                 ylim=(-0.02, 1.02))
     reward = column(rows, "charts/reward_per_step")
     if reward:
         axes[2].plot(*zip(*smooth(reward, 10), strict=True))
     axes[2].set(xlabel="env steps", ylabel="reward per step (moving mean of 10)", title="reward")
+    for source, color, label in ((rows, None, "approx. KL"), (other, "grey", f"approx. KL, {args.compare_label}")):
+        kl = column(source, "losses/approx_kl")
+        if kl:
+            axes[3].plot(*zip(*smooth(kl, 10), strict=True), color=color, label=label)
+    lr = column(rows, "charts/lr")
+    if lr:
+        axes[3].plot(*zip(*lr, strict=True), ".", ms=2, color="C3", label="learning rate")
+    axes[3].set(xlabel="env steps", yscale="log", title="PPO step size (moving mean of 10)")
+    axes[3].legend(fontsize=7)
     fig.suptitle(args.title, fontsize=10)
     fig.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
