@@ -107,6 +107,10 @@ def test_adaptive_lr_schedule_steps_after_every_minibatch_and_fixed_keeps_lr(tmp
     assert logged == pytest.approx([lr * 1.5 ** steps, lr * 1.5 ** (2 * steps)])
     fixed = train(compose_config(base, output_dir=tmp_path / "f"))
     assert [float(r["charts/lr"]) for r in _rows(fixed["metrics_csv"]) if r.get("charts/lr")] == pytest.approx([lr, lr])
+    # The learning curves of one branch with the other overlaid, the KL and learning-rate panel included.
+    subprocess.run([sys.executable, "tools/plot_run.py", run["metrics_csv"], "--compare", fixed["metrics_csv"],
+                    "--out", str(tmp_path / "curves.png")], check=True, cwd=ROOT, capture_output=True)
+    assert (tmp_path / "curves.png").stat().st_size > 10_000
     with pytest.raises(ValueError, match="algo.lr_schedule='cosine' is not allowed"):
         train(compose_config(base + ["algo.lr_schedule=cosine"], output_dir=tmp_path / "bad"))
 
