@@ -100,7 +100,7 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
         seed: environment i is seeded with seed + i.
         step_in_main: this process steps the first group itself while the workers step the others (so
             num_workers - 1 worker processes), instead of idling in between policy steps. On 2 cores, 3 busy
-            processes lose time to scheduling: 16 privileged envs collect ~1.25x faster (docs/benchmarks.md).
+            processes lose time to scheduling: 16 privileged envs collect ~1.4x faster (docs/benchmarks.md).
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
