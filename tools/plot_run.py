@@ -81,19 +81,19 @@ def main():
     if scale:
         axes[0].plot(*zip(*scale, strict=True), "k--", label="curriculum randomization scale")
     if args.baseline:
-        with open(args.baseline) as f:
-            baseline = column(list(csv.DictReader(f)), "charts/randomization_scale")
+        baseline = column(read_segments([args.baseline])[0], "charts/randomization_scale")
         axes[0].plot(*zip(*baseline, strict=True), ":", color="grey", label=f"scale, {args.baseline_label}")
-    if column(other, "charts/success_rate"):
-        axes[0].plot(*zip(*smooth(column(other, "charts/success_rate"), 10), strict=True), color="grey",
-                     label=f"training, {args.compare_label}")
+    other_train = column(other, "charts/success_rate")
+    if other_train:
+        axes[0].plot(*zip(*smooth(other_train, 10), strict=True), color="grey", label=f"training, {args.compare_label}")
     axes[0].set(xlabel="env steps", ylabel="success rate", title="training (curriculum ranges)", ylim=(-0.02, 1.02))
     axes[0].legend(fontsize=7)
     evals = column(rows, "eval/success_rate")
     if evals:
         axes[1].plot(*zip(*evals, strict=True), "o-", label="this run")
-    if column(other, "eval/success_rate"):
-        axes[1].plot(*zip(*column(other, "eval/success_rate"), strict=True), "o-", color="grey", label=args.compare_label)
+    other_evals = column(other, "eval/success_rate")
+    if other_evals:
+        axes[1].plot(*zip(*other_evals, strict=True), "o-", color="grey", label=args.compare_label)
         axes[1].legend(fontsize=7)
     axes[1].set(xlabel="env steps", ylabel="success rate", title="held-out evaluation (paper randomization)",
                 ylim=(-0.02, 1.02))

@@ -101,7 +101,8 @@ def train(cfg: DictConfig) -> dict:
                         deterministic=cfg.trainer.deterministic)
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0,
                               step_in_main=step_in_main)
-    log.info("env: %d envs in %d workers, observations %s", num_envs, num_workers, settings["observations"])
+    log.info("env: %d envs in %d groups (the main process steps one: %s), observations %s", num_envs,
+             max(num_workers, 1), step_in_main or not num_workers, settings["observations"])
     try:
         module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
                      rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads,
