@@ -12,8 +12,10 @@ import pytest
 import torch
 
 from tests.conftest import CONF, compose_config
+from vitac.envs.config import InsertionConfig, observation_shapes
 from vitac.evaluate import evaluate, load_policy
-from vitac.train import train
+from vitac.models.normalizer import RunningNormalizer
+from vitac.train import build_policy_from_config, env_settings, load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
 
 ROOT = Path(CONF).parent
@@ -94,6 +96,46 @@ def test_init_ckpt_starts_a_new_run_from_another_runs_weights(tmp_path):
     assert torch.allclose(warm_state["policy.head.log_std.weight"], fresh_state["policy.head.log_std.weight"], atol=1e-6)
     with pytest.raises(ValueError, match="init_ckpt=.*does not fit"):
         train(compose_config(SMOKE + [f"init_ckpt={first['checkpoint']}"], output_dir=tmp_path / "bad"))
+
+
+def _warm_started(obs_name: str, ckpt: str, tmp_path):
+    """A policy with obs=`obs_name` after load_weights from `ckpt` (the module stand-in has PPO's state keys)."""
+    cfg = compose_config(["preset=smoke", f"obs={obs_name}"], output_dir=tmp_path / obs_name)
+    holder = torch.nn.Module()
+    holder.policy = build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+    holder.value_normalizer = RunningNormalizer((), clip=float("inf"))
+    load_weights(holder, ckpt, [])
+    return holder.policy, cfg
+
+
+def test_init_ckpt_adds_contact_forces_with_zero_weights_so_the_warm_policy_acts_as_the_checkpoint(tmp_path):
+    first = train(compose_config(["preset=smoke", "obs=privileged", "algo.iterations=2"], output_dir=tmp_path / "first"))
+    source, _, _ = load_policy(first["checkpoint"])
+    warm, cfg = _warm_started("privileged_contact", first["checkpoint"], tmp_path)
+    shapes = observation_shapes(InsertionConfig.from_dict(env_settings(cfg)))
+    generator = torch.Generator().manual_seed(0)
+    obs = {k: 3 * torch.randn(5, 4, *shapes[k], generator=generator) for k in ("proprio", "peg_state", "contact_forces",
+                                                                              "critic_state")}
+    starts = torch.zeros(5, 4)
+    starts[0] = 1.0
+    expected = source({k: v for k, v in obs.items() if k != "contact_forces"}, source.initial_state(4), starts)
+    got = warm(obs, warm.initial_state(4), starts)
+    for e, g in zip(expected[:3], got[:3], strict=True):
+        assert torch.allclose(e, g, atol=1e-6)
+    # The new columns are zero but trainable: the contact forces reach the gradient.
+    weight = warm.head.lstm.weight_ih_l0
+    added = slice(source.feature_dim, warm.feature_dim)
+    assert warm.feature_dim == source.feature_dim + shapes["contact_forces"][0]
+    assert torch.equal(weight[:, added], torch.zeros_like(weight[:, added]))
+    got[0].square().sum().backward()
+    assert weight.grad[:, added].abs().sum() > 0
+    # A warm start that changes which observations come first is refused, naming the checkpoint.
+    with pytest.raises(ValueError, match="init_ckpt=.*does not fit this policy"):
+        _warm_started("wrist_tactile", first["checkpoint"], tmp_path)
+    # And a training run goes on from it.
+    run = train(compose_config(["preset=smoke", "obs=privileged_contact", "algo.iterations=1",
+                                f"init_ckpt={first['checkpoint']}"], output_dir=tmp_path / "warm_run"))
+    assert Path(run["checkpoint"]).is_file()
 
 
 def test_adaptive_lr_schedule_steps_after_every_minibatch_and_fixed_keeps_lr(tmp_path):

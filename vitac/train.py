@@ -7,6 +7,7 @@ from pathlib import Path
 
 import hydra
 import lightning as L
+import torch
 from hydra.core.hydra_config import HydraConfig
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger, WandbLogger
@@ -16,6 +17,7 @@ from vitac.envs.config import InsertionConfig, observation_shapes
 from vitac.envs.gym_env import InsertionEnv
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.models.build import build_policy
+from vitac.models.policy import IMAGE_ROLES, VECTOR_KEYS
 from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.lr_schedule import make_lr_schedule
@@ -128,16 +130,44 @@ def train(cfg: DictConfig) -> dict:
     return result
 
 
+FEATURE_INPUT = "policy.head.lstm.weight_ih_l0"  # the only layer that reads the fused features
+
+
 def load_weights(module: PPO, path: str, exclude: list) -> None:
-    """Warm start: every tensor of another run's checkpoint except those under an `exclude` prefix."""
-    state = load_checkpoint(path, key="init_ckpt")["state_dict"]
+    """Warm start: every tensor of another run's checkpoint except those under an `exclude` prefix.
+
+    When this policy reads vector observations that the checkpoint's did not (e.g. obs=privileged_contact
+    from an obs=privileged run), their columns of the feature input layer start at zero and their
+    encoders and normalizers fresh: the policy acts exactly as the checkpoint's until PPO learns to use them.
+    """
+    checkpoint = load_checkpoint(path, key="init_ckpt")
+    state = checkpoint["state_dict"]
     own = module.state_dict()
     picked = {k: v for k, v in state.items() if not any(k.startswith(prefix) for prefix in exclude)}
+    if FEATURE_INPUT in picked and picked[FEATURE_INPUT].shape[1] < own[FEATURE_INPUT].shape[1]:
+        picked[FEATURE_INPUT] = _widen_feature_input(module.policy, picked[FEATURE_INPUT],
+                                                     checkpoint["vitac_config"]["obs"]["modalities"], path)
     mismatched = [k for k, v in picked.items() if k not in own or own[k].shape != v.shape]
     if mismatched:
         raise ValueError(f"init_ckpt={path!r} does not fit this policy: {mismatched[:5]} differ in name or shape")
     module.load_state_dict(picked, strict=False)
     log.info("weights from %s (%d tensors; left out: %s)", path, len(picked), sorted(set(state) - set(picked)))
+
+
+def _widen_feature_input(policy, weight: torch.Tensor, old_modalities: list, path: str) -> torch.Tensor:
+    """The checkpoint's feature-input weights with zero columns for the observations it did not read."""
+    old_vectors = [k for k in VECTOR_KEYS if k in old_modalities]
+    old_images = [k for k in IMAGE_ROLES if k in old_modalities]
+    added = policy.vector_keys[len(old_vectors):]
+    # Vector features come last, in VECTOR_KEYS order: only added vector observations append columns.
+    if old_images != policy.image_keys or policy.vector_keys[:len(old_vectors)] != old_vectors or not added:
+        raise ValueError(f"init_ckpt={path!r} does not fit this policy: it read {sorted(old_modalities)}; a warm "
+                         f"start may only add vector observations after those, not change them "
+                         f"(this policy reads {policy.image_keys + policy.vector_keys})")
+    widened = torch.zeros(weight.shape[0], policy.feature_dim, dtype=weight.dtype)
+    widened[:, :weight.shape[1]] = weight
+    log.info("init_ckpt: %s enter the policy with zero weights", added)
+    return widened
 
 
 def load_critic(module: PPO, path: str) -> None:
