@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import subprocess
 import sys
@@ -155,6 +156,22 @@ def test_adaptive_lr_schedule_steps_after_every_minibatch_and_fixed_keeps_lr(tmp
     assert (tmp_path / "curves.png").stat().st_size > 10_000
     with pytest.raises(ValueError, match="algo.lr_schedule='cosine' is not allowed"):
         train(compose_config(base + ["algo.lr_schedule=cosine"], output_dir=tmp_path / "bad"))
+
+
+def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_resumed_one_where_it_is(tmp_path):
+    spec = importlib.util.spec_from_file_location("plot_run", ROOT / "tools" / "plot_run.py")
+    plot_run = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(plot_run)
+
+    def write(name, steps):
+        path = tmp_path / name
+        path.write_text("charts/env_steps,charts/success_rate\n" + "".join(f"{s},0.5\n" for s in steps))
+        return path
+
+    first, resumed, warm = write("a.csv", [100, 200]), write("b.csv", [300, 400]), write("c.csv", [50, 150])
+    rows, starts = plot_run.read_segments([first, resumed, warm])
+    assert [float(r["charts/env_steps"]) for r in rows] == [100, 200, 300, 400, 450, 550]
+    assert starts == [300, 450]
 
 
 def test_resume_without_checkpoint_fails_clearly(tmp_path):

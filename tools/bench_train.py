@@ -14,6 +14,7 @@ import argparse
 import csv
 import json
 import statistics
+import sys
 import tempfile
 from pathlib import Path
 
@@ -61,7 +62,7 @@ def main():
               f"{r['rollout_env_steps_per_s']:.0f} |")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(dict(rows=rows, command="python tools/bench_train.py"), indent=2) + "\n")
+        args.json.write_text(json.dumps(dict(rows=rows, command=" ".join(["python tools/bench_train.py", *sys.argv[1:]])), indent=2) + "\n")
 
 
 if __name__ == "__main__":

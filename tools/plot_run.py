@@ -6,8 +6,8 @@ learning rate), all against env steps.
         [--baseline other/metrics.csv --baseline-label "..."]
     python tools/plot_run.py first/csv/metrics.csv resumed/csv/metrics.csv --out curves.png   # one run, resumed
 
-Several CSVs are one run's segments (a run resumed into another directory), in order; a vertical line marks
-where each later segment starts.
+Several CSVs are one run's segments (a run resumed into another directory, or warm-started from the previous
+segment's last checkpoint with init_ckpt), in order; a vertical line marks where each later segment starts.
 
 `--baseline` overlays another run's curriculum scale on the first panel, to compare how fast two runs
 widen the randomization. `--compare` overlays another run's (or branch's) training success, evaluations
@@ -35,12 +35,20 @@ def column(rows, key):
 
 
 def read_segments(paths):
-    """The rows of one run's metrics CSVs in order, and the env steps at which each later segment starts."""
+    """The rows of one run's metrics CSVs in order, and the env steps at which each later segment starts.
+
+    A segment whose env steps start below the previous segment's last (a warm start with init_ckpt, which
+    counts from 0) is shifted to start where the previous one ended.
+    """
     rows, resumes = [], []
     for i, path in enumerate(paths):
         with open(path) as f:
-            segment = list(csv.DictReader(f))
+            segment = [r for r in csv.DictReader(f) if r.get("charts/env_steps")]
         if i > 0 and segment:
+            end = float(rows[-1]["charts/env_steps"]) if rows else 0.0
+            if float(segment[0]["charts/env_steps"]) < end:
+                for r in segment:
+                    r["charts/env_steps"] = str(float(r["charts/env_steps"]) + end)
             resumes.append(float(segment[0]["charts/env_steps"]))
         rows += segment
     return rows, resumes
