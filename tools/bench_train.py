@@ -26,6 +26,7 @@ from vitac.train import train
 
 CONFIGS = {"privileged": ["obs=privileged"],
            "privileged_workers_only": ["obs=privileged", "algo.step_in_main=false"],
+           "privileged_horizon128": ["obs=privileged", "algo.horizon=128", "algo.minibatch_size=512"],
            "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"],
            "wrist_tactile_cmt_sym_workers_only": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo.step_in_main=false"],
            "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "encoder.image.bf16=false"]}
