@@ -158,10 +158,16 @@ def test_adaptive_lr_schedule_steps_after_every_minibatch_and_fixed_keeps_lr(tmp
         train(compose_config(base + ["algo.lr_schedule=cosine"], output_dir=tmp_path / "bad"))
 
 
+def _tool(name: str):
+    """A script of tools/ as a module (tools/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_resumed_one_where_it_is(tmp_path):
-    spec = importlib.util.spec_from_file_location("plot_run", ROOT / "tools" / "plot_run.py")
-    plot_run = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(plot_run)
+    plot_run = _tool("plot_run")
 
     def write(name, steps):
         path = tmp_path / name
@@ -191,12 +197,20 @@ def test_evaluate_reports_success_with_interval(tmp_path):
     table = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json")], check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout
     assert sum(int(line.split("|")[3]) for line in table.splitlines()[2:]) == 2
+    same = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json"), str(tmp_path / "e.json"),
+                           "--paired"], check=True, cwd=ROOT, capture_output=True, text=True).stdout
+    assert same.splitlines()[-1] == "paired: inserted only by e: 0, only by e: 0, exact McNemar two-sided p = 1.000"
+    # 5 vs 17 discordant episodes: 2 * sum_{k<=5} C(22, k) / 2^22 = 2 * 35,443 / 4,194,304.
+    assert _tool("outcomes").mcnemar_exact(5, 17) == pytest.approx(2 * 35443 / 2 ** 22)
     spread = subprocess.run([sys.executable, "tools/log_std.py", run["checkpoint"], "--episodes", "1"], check=True,
                             cwd=ROOT, capture_output=True, text=True).stdout
     assert "past head.log_std_max=1.0: 0.0% (bound: clamp)" in spread  # a fresh policy's log-std starts at 0
     noiseless = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "n.json"),
                          socket_obs_noise=0.0)
     assert noiseless["socket_obs_noise"] == 0.0
+    refused = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json"), str(tmp_path / "n.json"),
+                              "--paired"], cwd=ROOT, capture_output=True, text=True)
+    assert refused.returncode != 0 and "not the same episodes (['socket_obs_noise'] differ)" in refused.stderr
     with pytest.raises(ValueError, match="socket_obs_noise"):
         evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, socket_obs_noise=-1.0)
     tilt_only = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5,

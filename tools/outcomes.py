@@ -1,16 +1,20 @@
 """How evaluated episodes ended: outcome counts and where the peg was, from `vitac.evaluate` JSON reports.
 
-    python tools/outcomes.py docs/data/results/privileged_cpu_stage1_eval_paper.json [more.json ...]
+    python tools/outcomes.py docs/data/results/privileged_cpu_stage1_eval_paper.json [more.json ...] [--paired]
 
 For each report and outcome (inserted, on or above the socket, ...): the number of episodes and the
 quartiles of the peg's final horizontal offset from the hole axis (mm), its height above the hole floor
 (mm) and its tilt (degrees), as a markdown table.
+
+`--paired` compares two reports of the same held-out episodes (same seed, count and randomization): how
+many episodes only the first inserted, how many only the second, and the exact two-sided McNemar p-value.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -21,14 +25,38 @@ def quartiles(values) -> str:
     return f"{q2:.1f} ({q1:.1f}-{q3:.1f})"
 
 
+SAME_EPISODES = ("seed", "episodes", "randomization_scale", "socket_obs_noise", "randomize_only")
+
+
+def mcnemar_exact(only_first: int, only_second: int) -> float:
+    """Two-sided exact McNemar p-value: a binomial(n, 1/2) test on the discordant episodes."""
+    n = only_first + only_second
+    tail = sum(math.comb(n, k) for k in range(min(only_first, only_second) + 1)) / 2 ** n
+    return min(1.0, 2 * tail)
+
+
+def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
+    differ = [k for k in SAME_EPISODES if first.get(k) != second.get(k)]
+    if differ:
+        raise SystemExit(f"--paired: {names[0]} and {names[1]} are not the same episodes ({differ} differ)")
+    a, b = ([e["outcome"] == "inserted" for e in r["final_peg"]] for r in (first, second))
+    only_first = sum(x and not y for x, y in zip(a, b, strict=True))
+    only_second = sum(y and not x for x, y in zip(a, b, strict=True))
+    return (f"paired: inserted only by {names[0]}: {only_first}, only by {names[1]}: {only_second}, "
+            f"exact McNemar two-sided p = {mcnemar_exact(only_first, only_second):.3f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("reports", type=Path, nargs="+")
+    parser.add_argument("--paired", action="store_true", help="compare two reports of the same episodes")
     args = parser.parse_args()
+    if args.paired and len(args.reports) != 2:
+        parser.error("--paired takes exactly two reports")
     print("| report | outcome | episodes | offset from axis, mm: median (quartiles) | height above floor, mm | tilt, deg |")
     print("|---|---|---|---|---|---|")
-    for path in args.reports:
-        report = json.loads(path.read_text())
+    reports = [json.loads(path.read_text()) for path in args.reports]
+    for path, report in zip(args.reports, reports, strict=True):
         if "final_peg" not in report:
             raise SystemExit(f"{path}: no 'final_peg' entries (written by an older vitac.evaluate); evaluate again")
         by_outcome: dict[str, list] = {}
@@ -37,6 +65,8 @@ def main():
         for outcome, episodes in sorted(by_outcome.items(), key=lambda item: -len(item[1])):
             cells = [quartiles([e[k] for e in episodes]) for k in ("offset_xy_mm", "height_mm", "tilt_deg")]
             print(f"| {path.stem} | {outcome} | {len(episodes)} | " + " | ".join(cells) + " |")
+    if args.paired:
+        print("\n" + paired(*reports, names=tuple(path.stem for path in args.reports)))
 
 
 if __name__ == "__main__":
