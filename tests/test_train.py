@@ -178,6 +178,13 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
     rows, starts = plot_run.read_segments([first, resumed, warm])
     assert [float(r["charts/env_steps"]) for r in rows] == [100, 200, 300, 400, 450, 550]
     assert starts == [300, 450]
+    # tools/run_summary.py reads segments the same way; the figures docs/results.md quotes for one segment:
+    summary = subprocess.run([sys.executable, "tools/run_summary.py",
+                              "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
+                             capture_output=True, text=True).stdout.splitlines()
+    assert summary[0] == "env steps: 9,576,448 -> 10,496,000 (450 iterations)"
+    assert summary[1] == "median env steps/s: 1028"
+    assert "overall 75%" in summary[5]
 
 
 def test_resume_without_checkpoint_fails_clearly(tmp_path):

@@ -1,0 +1,50 @@
+"""The figures docs/results.md quotes for a training run, from its metrics CSV(s).
+
+    python tools/run_summary.py <run>/csv/metrics.csv [<resumed run>/csv/metrics.csv ...] [--window 1e6]
+
+Prints env steps covered, iterations, median env steps/s, the learning rate (median and 10th-90th
+percentile), median approximate KL, entropy at the first and last iteration, training success (mean per
+`--window` env steps and overall) and the range of the held-out evaluations. Segments are read as
+tools/plot_run.py reads them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+from pathlib import Path
+
+import numpy as np
+from plot_run import column, read_segments
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
+    parser.add_argument("--window", type=float, default=1e6, help="env steps per training-success mean")
+    args = parser.parse_args()
+    rows = read_segments(args.metrics)[0]
+    steps = [s for s, _ in column(rows, "charts/env_steps")]
+    lr = [v for _, v in column(rows, "charts/lr")]
+    entropy = [v for _, v in column(rows, "losses/entropy")]
+    success = column(rows, "charts/success_rate")
+    evals = [v for _, v in column(rows, "eval/success_rate")]
+    print(f"env steps: {steps[0]:,.0f} -> {steps[-1]:,.0f} ({len(column(rows, 'losses/loss'))} iterations)")
+    print(f"median env steps/s: {statistics.median(v for _, v in column(rows, 'charts/SPS')):.0f}")
+    p10, p50, p90 = np.percentile(lr, [10, 50, 90])
+    print(f"learning rate: median {p50:.2g} (10th-90th percentile {p10:.2g} to {p90:.2g})")
+    print(f"median approx KL: {statistics.median(v for _, v in column(rows, 'losses/approx_kl')):.3f}")
+    print(f"entropy: {entropy[0]:.2f} -> {entropy[-1]:.2f}")
+    start = success[0][0]
+    windows: dict[int, list] = {}
+    for s, v in success:
+        windows.setdefault(int((s - start) // args.window), []).append(v)
+    means = ", ".join(f"{100 * statistics.mean(v):.0f}%" for _, v in sorted(windows.items()))
+    print(f"training success, mean per {args.window:,.0f} env steps: {means}; overall "
+          f"{100 * statistics.mean(v for _, v in success):.0f}%")
+    if evals:
+        print(f"held-out evaluations: {len(evals)}, {100 * min(evals):.1f}-{100 * max(evals):.1f}%")
+
+
+if __name__ == "__main__":
+    main()
