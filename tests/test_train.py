@@ -192,6 +192,16 @@ def test_resume_without_checkpoint_fails_clearly(tmp_path):
         train(compose_config(SMOKE + [f"resume={tmp_path / 'nothing'}"], output_dir=tmp_path / "x"))
 
 
+@pytest.mark.parametrize("value,pattern", [("tpu", r"trainer.accelerator='tpu' is not allowed: expected one of "
+                                                    r"\['cpu', 'gpu', 'auto'\]"),
+                                           ("gpu", r"trainer.accelerator='gpu' is not allowed here: torch sees no CUDA")])
+def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, value, pattern):
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    with pytest.raises(ValueError, match=pattern):
+        train(compose_config(SMOKE + [f"trainer.accelerator={value}"], output_dir=tmp_path / "x"))
+
+
 def test_evaluate_reports_success_with_interval(tmp_path):
     run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
     report = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "e.json"))

@@ -22,7 +22,7 @@ from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.lr_schedule import make_lr_schedule
 from vitac.rl.ppo import PPO
-from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.checkpoint import PortableCheckpointIO, load_checkpoint
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 
 log = logging.getLogger(__name__)
@@ -40,6 +40,19 @@ def env_settings(cfg: DictConfig) -> dict:
 
 def uses_critic(cfg: DictConfig) -> bool:
     return cfg.critic is not None and cfg.critic.get("_target_") is not None
+
+
+ACCELERATORS = ("cpu", "gpu", "auto")
+
+
+def check_accelerator(accelerator: str) -> str:
+    """The Lightning accelerator for `trainer.accelerator`, refusing a GPU that torch cannot see."""
+    if accelerator not in ACCELERATORS:
+        raise ValueError(f"trainer.accelerator={accelerator!r} is not allowed: expected one of {list(ACCELERATORS)}")
+    if accelerator == "gpu" and not torch.cuda.is_available():
+        raise ValueError("trainer.accelerator='gpu' is not allowed here: torch sees no CUDA device "
+                         f"(torch {torch.__version__}); use cpu or auto")
+    return accelerator
 
 
 def build_policy_from_config(cfg: DictConfig, env_config: InsertionConfig):
@@ -63,6 +76,7 @@ def train(cfg: DictConfig) -> dict:
     # Everything that can be checked without simulating is checked first.
     settings = env_settings(cfg)
     env_config = InsertionConfig.from_dict(settings)
+    accelerator = check_accelerator(cfg.trainer.accelerator)
     policy = build_policy_from_config(cfg, env_config)
     log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
              sum(p.numel() for p in policy.parameters()))
@@ -97,10 +111,11 @@ def train(cfg: DictConfig) -> dict:
     if cfg.logger.wandb:
         loggers.append(WandbLogger(save_dir=str(out), offline=True, project=cfg.logger.project,
                                    name=cfg.logger.get("name"), config=resolved))
-    trainer = L.Trainer(max_epochs=iterations, accelerator="cpu", devices=1, logger=loggers,
+    trainer = L.Trainer(max_epochs=iterations, accelerator=accelerator, devices=1, logger=loggers,
                         callbacks=[checkpoints, best, evaluation, IterationProgressBar()], enable_progress_bar=False,
                         enable_model_summary=False, log_every_n_steps=1, num_sanity_val_steps=0,
-                        deterministic=cfg.trainer.deterministic)
+                        deterministic=cfg.trainer.deterministic, plugins=[PortableCheckpointIO()])
+    log.info("policy and PPO update on %s; environments on CPU", trainer.strategy.root_device)
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0,
                               step_in_main=step_in_main)
     log.info("env: %d envs in %d groups (the main process steps one: %s), observations %s", num_envs,

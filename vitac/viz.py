@@ -64,14 +64,15 @@ def policy_actor(policy) -> Callable[[dict], np.ndarray]:
     """Deterministic (mean) actions of a recurrent policy, carrying its state across calls."""
     import torch
 
-    memory = {"state": policy.initial_state(1), "starts": torch.ones(1, 1)}
+    device = policy.device
+    memory = {"state": policy.initial_state(1, device), "starts": torch.ones(1, 1, device=device)}
 
     @torch.inference_mode()
     def act(obs: dict) -> np.ndarray:
-        obs_t = {k: torch.as_tensor(v)[None, None] for k, v in obs.items()}
+        obs_t = {k: torch.as_tensor(v)[None, None].to(device) for k, v in obs.items()}
         mean, _, _, memory["state"] = policy(obs_t, memory["state"], memory["starts"])
-        memory["starts"] = torch.zeros(1, 1)
-        return mean[0, 0].numpy()
+        memory["starts"] = torch.zeros(1, 1, device=device)
+        return mean[0, 0].cpu().numpy()
 
     return act
 

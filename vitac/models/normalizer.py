@@ -24,7 +24,7 @@ class RunningNormalizer(nn.Module):
 
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
-        x = x.reshape(-1, *self.mean.shape).double()
+        x = x.reshape(-1, *self.mean.shape).to(self.mean.device, torch.float64)  # e.g. CPU rollouts, GPU stats
         batch_mean, batch_var, n = x.mean(0), x.var(0, unbiased=False), x.shape[0]
         delta, total = batch_mean - self.mean, self.count + n
         self.mean += delta * n / total

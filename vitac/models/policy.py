@@ -63,6 +63,10 @@ class VisuoTactilePolicy(nn.Module):
             self.critic_normalizer = RunningNormalizer((critic_state_dim,))
         self.feature_dim = features
 
+    @property
+    def device(self) -> torch.device:
+        return next(self.parameters()).device
+
     def initial_state(self, batch: int, device=None):
         return self.head.initial_state(batch, device)
 

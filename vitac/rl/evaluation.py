@@ -12,22 +12,24 @@ import torch
 @torch.inference_mode()
 def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = True) -> dict:
     """Run `episodes` episodes (a multiple of envs.num_envs) with the mean action, or with actions sampled
-    from the policy's Gaussian (noise from a generator seeded with `seed`); returns per-episode results."""
+    from the policy's Gaussian (noise from a generator seeded with `seed`, on the CPU whatever the policy's
+    device); returns per-episode results."""
     policy.eval()
+    device = policy.device
     generator = torch.Generator().manual_seed(seed)
     n = envs.num_envs
     results = []
     rounds = math.ceil(episodes / n)
     for r in range(rounds):
         obs, _ = envs.reset(seed=seed + r * n)
-        state, starts = policy.initial_state(n), torch.ones(n)
+        state, starts = policy.initial_state(n, device), torch.ones(n)
         done = np.zeros(n, dtype=bool)
         while not done.all():
-            obs_t = {k: torch.as_tensor(v)[None] for k, v in obs.items()}
-            mean, log_std, _, state = policy(obs_t, state, starts[None])
-            action = mean[0]
+            obs_t = {k: torch.as_tensor(v)[None].to(device) for k, v in obs.items()}
+            mean, log_std, _, state = policy(obs_t, state, starts[None].to(device))
+            action = mean[0].cpu()
             if not deterministic:
-                action = action + log_std[0].exp() * torch.randn(action.shape, generator=generator)
+                action = action + log_std[0].cpu().exp() * torch.randn(action.shape, generator=generator)
             obs, _, terminated, truncated, info = envs.step(action.clamp(-1, 1).numpy())
             starts = torch.zeros(n)
             for i in np.flatnonzero((terminated | truncated) & ~done):

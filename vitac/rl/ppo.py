@@ -7,6 +7,7 @@ import time
 import lightning as L
 import numpy as np
 import torch
+from lightning.pytorch.utilities import move_data_to_device
 from torch.utils.data import DataLoader, Dataset
 
 from vitac.models.normalizer import RunningNormalizer
@@ -29,6 +30,10 @@ class _OneItem(Dataset):
 
 class PPO(L.LightningModule):
     """Rollouts from a vector env, GAE, clipped surrogate + clipped value + bounds + entropy + symmetry terms.
+
+    The policy, its normalizers and the update run on the module's device (Lightning's accelerator); the
+    environments, the rollout buffer, GAE and the action noise stay on the CPU, so a run draws the same
+    noise on either device and its checkpoints load anywhere.
 
     Args:
         policy: the actor-critic.
@@ -93,7 +98,7 @@ class PPO(L.LightningModule):
         if self._restored is not None:  # exact resume: environments, recurrent state and flags
             r = self._restored
             self._obs = self.envs.set_state(r["env_states"])
-            self._state = r["lstm_state"]
+            self._state = tuple(s.to(self.device) for s in r["lstm_state"])
             self._starts = r["starts"]
             self.env_steps = r["env_steps"]
             self.generator.set_state(r["generator"])
@@ -106,12 +111,13 @@ class PPO(L.LightningModule):
             if self.curriculum is not None:
                 self.envs.set_randomization_scale(self.curriculum.scale)
             self._obs, _ = self.envs.reset(seed=None)
-            self._state = self.policy.initial_state(n)
+            self._state = self.policy.initial_state(n, self.device)
             self._starts = torch.ones(n)
 
     def on_save_checkpoint(self, checkpoint):
         checkpoint["vitac_config"] = self.run_config
-        checkpoint["vitac"] = dict(env_states=self.envs.get_state(), lstm_state=self._state, starts=self._starts,
+        checkpoint["vitac"] = dict(env_states=self.envs.get_state(), lstm_state=tuple(s.cpu() for s in self._state),
+                                   starts=self._starts,
                                    env_steps=self.env_steps, generator=self.generator.get_state(),
                                    curriculum=self.curriculum.state_dict() if self.curriculum else None)
 
@@ -123,11 +129,16 @@ class PPO(L.LightningModule):
     def _to_torch(obs: dict) -> dict:
         return {k: torch.as_tensor(v) for k, v in obs.items()}
 
+    def _step_inputs(self, obs: dict, starts: torch.Tensor) -> tuple[dict, torch.Tensor]:
+        """One time step of CPU observations (B, ...) and start flags (B,) as (1, B, ...) policy inputs."""
+        return {k: v[None].to(self.device) for k, v in obs.items()}, starts[None].to(self.device)
+
     @torch.no_grad()
     def _value(self, obs: dict, state, starts) -> torch.Tensor:
-        """Raw-scale value of one step of observations (B, ...)."""
-        _, _, value, _ = self.policy({k: v[None] for k, v in obs.items()}, state, starts[None])
-        return self._raw(value[0])
+        """Raw-scale value (on the CPU) of one step of observations (B, ...)."""
+        inputs, starts = self._step_inputs(obs, starts)
+        _, _, value, _ = self.policy(inputs, state, starts)
+        return self._raw(value[0]).cpu()
 
     def _raw(self, value: torch.Tensor) -> torch.Tensor:
         """Network value -> return scale (the network predicts normalized returns when normalize_value)."""
@@ -143,16 +154,16 @@ class PPO(L.LightningModule):
         start_time = time.perf_counter()
         for t in range(hp["horizon"]):
             if t % hp["seq_len"] == 0:
-                buf.chunk_states[t // hp["seq_len"]] = (self._state[0].clone(), self._state[1].clone())
-            mean, log_std, value, next_state = self.policy({k: v[None] for k, v in obs.items()}, self._state,
-                                                           self._starts[None])
-            mean, log_std, value = mean[0], log_std[0], value[0]
+                buf.chunk_states[t // hp["seq_len"]] = (self._state[0].cpu().clone(), self._state[1].cpu().clone())
+            inputs, starts = self._step_inputs(obs, self._starts)
+            mean, log_std, value, next_state = self.policy(inputs, self._state, starts)
+            mean, log_std, value = mean[0].cpu(), log_std[0].cpu(), self._raw(value[0]).cpu()
             action = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
             for k, v in obs.items():
                 buf.obs[k][t] = v
             buf.actions[t], buf.starts[t] = action, self._starts
             buf.log_probs[t] = losses.gaussian_log_prob(action, mean, log_std)
-            buf.values[t] = self._raw(value)
+            buf.values[t] = value
             next_obs, reward, terminated, truncated, info = self.envs.step(action.clamp(-1.0, 1.0).numpy())
             ended = torch.as_tensor(terminated | truncated, dtype=torch.float32)
             buf.rewards[t], buf.ends[t] = torch.as_tensor(reward), ended
@@ -204,7 +215,7 @@ class PPO(L.LightningModule):
         v_loss = losses.value_loss(value, old_values, returns, hp["clip"] if hp["clip_value"] else None)
         entropy = losses.gaussian_entropy(log_std).mean()
         b_loss = losses.bounds_loss(mean)
-        sym_loss = sym.mean() if sym is not None else torch.zeros(())
+        sym_loss = sym.mean() if sym is not None else torch.zeros((), device=mean.device)
         total = (pg_loss + 0.5 * hp["critic_coef"] * v_loss - hp["entropy_coef"] * entropy
                  + hp["bounds_loss_coef"] * b_loss + policy.regularizer.lambda_sym * sym_loss)
         return dict(loss=total, policy_loss=pg_loss, value_loss=v_loss, entropy=entropy, bounds_loss=b_loss,
@@ -225,7 +236,7 @@ class PPO(L.LightningModule):
         count = 0
         for _ in range(hp["mini_epochs"]):
             for mb in self.buffer.minibatches(hp["minibatch_size"], self.generator):
-                terms = self.minibatch_losses(mb)
+                terms = self.minibatch_losses(move_data_to_device(mb, self.device))
                 optimizer.zero_grad()
                 self.manual_backward(terms["loss"])
                 grad_norm = torch.nn.utils.clip_grad_norm_(self.policy.parameters(), hp["grad_norm"])
