@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 from dataclasses import asdict
 
 import numpy as np
@@ -284,6 +286,17 @@ def test_a_failing_group_is_reported_and_leaves_the_vector_env_in_step():
     obs, reward, *_ = venv.step(np.zeros((4, 6)))  # every reply was collected: the next step is in order
     venv.close()
     assert obs["proprio"].shape == (4, 19) and np.isfinite(reward).all()
+
+
+def test_a_dead_worker_is_named_with_its_exit_code_and_close_still_works():
+    venv = InsertionVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
+    venv.reset(seed=0)
+    worker = venv._procs[0]
+    os.kill(worker.pid, signal.SIGKILL)  # e.g. the kernel's OOM killer
+    worker.join(timeout=10)
+    with pytest.raises(RuntimeError, match=rf"worker process {worker.pid} died \(exit code -9\) during 'step'"):
+        venv.step(np.zeros((4, 6)))
+    venv.close()
 
 
 def test_env_refuses_bad_config_at_construction():

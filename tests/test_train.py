@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import importlib.util
 import json
+import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -67,6 +69,29 @@ def test_killed_run_resumes_to_the_same_metrics(tmp_path):
     assert resumed_reward == full_reward
     # Weights and optimizer resume; CPU conv kernels are reproducible across processes only to ~1e-6.
     assert [float(x) for x in resumed_losses] == pytest.approx([float(x) for x in full_losses], rel=1e-4, abs=1e-9)
+
+
+def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continues_from_it(tmp_path):
+    # No periodic checkpoints: last.ckpt can only come from the SIGTERM. 4 envs in 2 groups: one worker process,
+    # which gets the SIGTERM too (as from SLURM or `kill -- -PGID`).
+    args = ["preset=smoke", "obs=privileged", "algo.num_envs=4", "algo.num_workers=2", "algo.save_every=1000",
+            "algo.eval_every=1000", "logger=csv"]
+    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args, "algo.iterations=500",
+                             f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, start_new_session=True)
+    progress = ""
+    while "| 3/500" not in progress and proc.poll() is None:  # the progress bar after iteration 3
+        progress += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    os.killpg(proc.pid, signal.SIGTERM)
+    stdout, _ = proc.communicate(timeout=120)
+    saved = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.ckpt")
+    done = saved["vitac"]["env_steps"] // (16 * 4)  # iterations of 16 steps x 4 envs
+    assert 3 <= done < 500 and "vitac: stopped by SIGTERM" in stdout
+    resumed = train(compose_config(args + [f"algo.iterations={done + 1}", f"resume={tmp_path / 'run'}"],
+                                   output_dir=tmp_path / "resumed"))
+    full = train(compose_config(args + [f"algo.iterations={done + 1}"], output_dir=tmp_path / "full"))
+    (epoch, *_, reward), = _losses(resumed)
+    assert epoch == str(done) and reward == [row for row in _losses(full) if row[0] == epoch][0][-1]
 
 
 def test_resuming_without_the_curriculum_restores_the_configured_ranges(tmp_path):

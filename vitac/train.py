@@ -18,7 +18,7 @@ from vitac.envs.gym_env import InsertionEnv
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.models.build import build_policy
 from vitac.models.policy import IMAGE_ROLES, VECTOR_KEYS
-from vitac.rl.callbacks import EvaluationCallback, IterationProgressBar
+from vitac.rl.callbacks import CheckpointOnTermination, EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.lr_schedule import make_lr_schedule
 from vitac.rl.ppo import PPO
@@ -112,7 +112,8 @@ def train(cfg: DictConfig) -> dict:
         loggers.append(WandbLogger(save_dir=str(out), offline=True, project=cfg.logger.project,
                                    name=cfg.logger.get("name"), config=resolved))
     trainer = L.Trainer(max_epochs=iterations, accelerator=accelerator, devices=1, logger=loggers,
-                        callbacks=[checkpoints, best, evaluation, IterationProgressBar()], enable_progress_bar=False,
+                        callbacks=[checkpoints, best, evaluation, CheckpointOnTermination(out / "checkpoints" / "last.ckpt"),
+                                   IterationProgressBar()], enable_progress_bar=False,
                         enable_model_summary=False, log_every_n_steps=1, num_sanity_val_steps=0,
                         deterministic=cfg.trainer.deterministic, plugins=[PortableCheckpointIO()])
     log.info("policy and PPO update on %s; environments on CPU", trainer.strategy.root_device)

@@ -8,6 +8,7 @@ truncations), with `info["final_info"][i]` its success statistics.
 from __future__ import annotations
 
 import multiprocessing as mp
+import signal
 import traceback
 from multiprocessing import shared_memory
 
@@ -69,6 +70,9 @@ class _EnvGroup:
 
 
 def _worker(pipe, config, seeds, shm_specs, offset):
+    # A SIGTERM to the whole job (SLURM, `kill -- -PGID`) is the main process's to handle: it finishes its
+    # iteration and saves it, then closes the workers; one that died first would lose that iteration.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     shms = {k: shared_memory.SharedMemory(name=name) for k, (name, _, _) in shm_specs.items()}
     arrays = {k: np.ndarray(shape, dtype, buffer=shms[k].buf) for k, (_, shape, dtype) in shm_specs.items()}
     group = _EnvGroup(config, seeds, arrays, offset)
@@ -147,18 +151,33 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
     def _call(self, command: str, payloads: list) -> list:
         """One payload per group: the workers start first, then this process runs its own group, if any."""
         remote = payloads[1:] if self._local is not None else payloads
-        for pipe, payload in zip(self._pipes, remote, strict=True):
-            pipe.send((command, payload))
+        for w, payload in enumerate(remote):
+            try:
+                self._pipes[w].send((command, payload))
+            except (BrokenPipeError, ConnectionResetError) as err:
+                raise self._worker_died(w, command) from err
         try:
             local = [getattr(self._local, command)(*payloads[0])] if self._local is not None else []
         finally:  # the workers' replies are collected even when this process's group failed
-            replies = [pipe.recv() for pipe in self._pipes]
+            replies = [self._receive(w, command) for w in range(len(self._pipes))]
         first = len(local)
         errors = [(first + w, body) for w, (status, body) in enumerate(replies) if status == "error"]
         if errors:
             group, trace = errors[0]
             raise RuntimeError(f"environment group {group} (a worker process) failed in {command!r}:\n{trace}")
         return local + [body for _, body in replies]
+
+    def _receive(self, w: int, command: str):
+        try:
+            return self._pipes[w].recv()
+        except (EOFError, ConnectionResetError) as err:
+            raise self._worker_died(w, command) from err
+
+    def _worker_died(self, w: int, command: str) -> RuntimeError:
+        proc = self._procs[w]
+        proc.join(timeout=1)
+        return RuntimeError(f"environment worker process {proc.pid} died (exit code {proc.exitcode}) during "
+                            f"{command!r}; a run continues from its last checkpoint with resume=<run dir>")
 
     def _split(self, x) -> list:
         groups = max(self.num_workers, 1)
@@ -206,7 +225,7 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
         for pipe in self._pipes:
             try:
                 pipe.send(("close", ()))
-            except (BrokenPipeError, EOFError):
+            except (BrokenPipeError, EOFError, ConnectionResetError):
                 pass
         for proc in self._procs:
             proc.join(timeout=5)

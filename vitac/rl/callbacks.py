@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import lightning as L
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 from tqdm.auto import tqdm
 
 from vitac.rl.evaluation import run_episodes
@@ -60,6 +61,20 @@ class EvaluationCallback(L.Callback):
     def teardown(self, trainer, module, stage):
         if self.envs is not None:
             self.envs.close()
+
+
+class CheckpointOnTermination(L.Callback):
+    """On SIGTERM (a SLURM preemption or time limit, `kill`) Lightning finishes the current iteration and
+    stops with SIGTERMException; this saves that state to `path` (last.ckpt), so `resume=<run dir>` loses
+    none of the run. Other exceptions can stop a run mid-rollout, whose state must not be saved."""
+
+    def __init__(self, path):
+        self.path = path
+
+    def on_exception(self, trainer, module, exception):
+        if isinstance(exception, SIGTERMException):  # raised between iterations only
+            trainer.save_checkpoint(self.path)
+            print(f"\nvitac: stopped by SIGTERM after {module.env_steps} env steps; saved to {self.path}", flush=True)
 
 
 class IterationProgressBar(L.Callback):
