@@ -212,6 +212,20 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
     assert "overall 75%" in summary[5]
 
 
+def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_others():
+    pooled = _tool("outcomes").pooled
+    setting = dict(ckpt="run/last.ckpt", randomization_scale=1.0, socket_obs_noise=0.005, randomize_only=None,
+                   policy="deterministic")
+    first = dict(setting, seed=2000000, episodes=100, success_rate=0.9)
+    more = dict(setting, seed=2000100, episodes=300, success_rate=257 / 300)
+    # 347 / 400: Wilson interval by hand, p = 0.8675, z = 1.96.
+    assert pooled([first, more], ["a", "b"]) == "pooled: 347 of 400 episodes succeeded = 86.8% (95% Wilson interval 83.1-89.7%)"
+    with pytest.raises(SystemExit, match="share episodes"):
+        pooled([first, dict(more, seed=2000050)], ["a", "b"])
+    with pytest.raises(SystemExit, match=r"\['ckpt'\] differ"):
+        pooled([first, dict(more, ckpt="other/last.ckpt")], ["a", "b"])
+
+
 def test_resume_without_checkpoint_fails_clearly(tmp_path):
     with pytest.raises(FileNotFoundError, match="resume="):
         train(compose_config(SMOKE + [f"resume={tmp_path / 'nothing'}"], output_dir=tmp_path / "x"))

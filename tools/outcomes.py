@@ -8,16 +8,23 @@ quartiles of the peg's final horizontal offset from the hole axis (mm), its heig
 
 `--paired` compares two reports of the same held-out episodes (same seed, count and randomization): how
 many episodes only the first inserted, how many only the second, and the exact two-sided McNemar p-value.
+
+`--pooled` adds up reports of one checkpoint under one setting on different episodes (seed ranges that do
+not overlap, e.g. `episodes=100` then `episodes=300 seed=2000100`): the success rate over all of them with
+its 95% Wilson interval.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import math
 from pathlib import Path
 
 import numpy as np
+
+from vitac.rl.evaluation import wilson_interval
 
 
 def quartiles(values) -> str:
@@ -46,10 +53,28 @@ def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
             f"exact McNemar two-sided p = {mcnemar_exact(only_first, only_second):.3f}")
 
 
+POOLED_SAME = ("ckpt", "randomization_scale", "socket_obs_noise", "randomize_only", "policy")
+
+
+def pooled(reports: list, names: list) -> str:
+    differ = [k for k in POOLED_SAME if len({json.dumps(r.get(k)) for r in reports}) > 1]
+    if differ:
+        raise SystemExit(f"--pooled: {names} are not evaluations of one checkpoint under one setting ({differ} differ)")
+    spans = sorted((r["seed"], r["seed"] + r["episodes"]) for r in reports)
+    if any(later[0] < earlier[1] for earlier, later in itertools.pairwise(spans)):
+        raise SystemExit(f"--pooled: {names} share episodes (their seed ranges {spans} overlap)")
+    successes = sum(round(r["success_rate"] * r["episodes"]) for r in reports)  # TacSL's success check
+    episodes = sum(r["episodes"] for r in reports)
+    low, high = wilson_interval(successes, episodes)
+    return (f"pooled: {successes} of {episodes} episodes succeeded = {100 * successes / episodes:.1f}% "
+            f"(95% Wilson interval {100 * low:.1f}-{100 * high:.1f}%)")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("reports", type=Path, nargs="+")
     parser.add_argument("--paired", action="store_true", help="compare two reports of the same episodes")
+    parser.add_argument("--pooled", action="store_true", help="success over reports of one checkpoint on other episodes")
     args = parser.parse_args()
     if args.paired and len(args.reports) != 2:
         parser.error("--paired takes exactly two reports")
@@ -67,6 +92,8 @@ def main():
             print(f"| {path.stem} | {outcome} | {len(episodes)} | " + " | ".join(cells) + " |")
     if args.paired:
         print("\n" + paired(*reports, names=tuple(path.stem for path in args.reports)))
+    if args.pooled:
+        print("\n" + pooled(reports, [path.stem for path in args.reports]))
 
 
 if __name__ == "__main__":
