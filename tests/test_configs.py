@@ -147,6 +147,13 @@ def test_shaped_privileged_experiment_extends_the_privileged_one():
     assert (shaped.head.log_std_mode, shaped.env.lateral_reward_scale, shaped.env.success_reward_scale) == ("param", 0.5, 0.1)
 
 
+def test_shaped_cmt_experiment_trains_on_the_reward_of_the_privileged_run_its_critic_comes_from():
+    privileged, cmt = (compose_config([f"experiment={name}"])
+                       for name in ("results_privileged_cpu_shaped", "results_cmt_sym_cpu_shaped"))
+    assert cmt.env == privileged.env and cmt.head == privileged.head  # critic_ckpt values the same reward
+    assert (cmt.obs.name, cmt.fusion._target_.rsplit(".", 1)[1], cmt.reg.lambda_sym) == ("wrist_tactile", "CrossModalTransformer", 1.0)
+
+
 @pytest.mark.parametrize("launcher,target", [("joblib_local", "JoblibLauncher"), ("slurm", "SlurmLauncher")])
 def test_launcher_configs_compose(launcher, target):
     from hydra import compose, initialize_config_dir
