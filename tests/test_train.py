@@ -210,6 +210,7 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
     assert summary[0] == "env steps: 9,576,448 -> 10,496,000 (450 iterations)"
     assert summary[1] == "median env steps/s: 1028"
     assert "overall 75%" in summary[5]
+    assert summary[-2].startswith("learning rate range: ") and summary[-1].startswith("explained variance: first ")
 
 
 def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_others():

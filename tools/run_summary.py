@@ -4,7 +4,8 @@
 
 Prints env steps covered, iterations, median env steps/s, the learning rate (median and 10th-90th
 percentile), median approximate KL, entropy at the first and last iteration, training success (mean per
-`--window` env steps and overall) and the range of the held-out evaluations. Segments are read as
+`--window` env steps and overall), the range of the held-out evaluations, the learning rate's extremes and
+the explained variance of the value targets (first iteration and median). Segments are read as
 tools/plot_run.py reads them.
 """
 
@@ -44,6 +45,9 @@ def main():
           f"{100 * statistics.mean(v for _, v in success):.0f}%")
     if evals:
         print(f"held-out evaluations: {len(evals)}, {100 * min(evals):.1f}-{100 * max(evals):.1f}%")
+    print(f"learning rate range: {min(lr):.2g} to {max(lr):.2g}")
+    explained = [v for _, v in column(rows, "losses/explained_variance")]
+    print(f"explained variance: first {explained[0]:.2f}, median {statistics.median(explained):.2f}")
 
 
 if __name__ == "__main__":
