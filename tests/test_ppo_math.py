@@ -9,6 +9,7 @@ import torch
 
 from vitac.rl import losses
 from vitac.rl.lr_schedule import AdaptiveKLSchedule, make_lr_schedule
+from vitac.rl.ppo import make_optimizer
 
 
 def _gae(rewards, values, next_values, ends, gamma=0.9, lam=0.5):
@@ -106,3 +107,30 @@ def test_adaptive_lr_follows_rl_games_rule_within_bounds():
         make_lr_schedule("cosine", 0.01)
     with pytest.raises(ValueError, match=r"algo.kl_threshold=0.0 is not allowed"):
         make_lr_schedule("adaptive", 0.0)
+
+
+def test_fused_adam_continues_a_default_adam_state_with_the_same_arithmetic():
+    """Checkpoints written before PPO's optimizer was fused resume with it, and both step alike."""
+    torch.manual_seed(0)
+    weights = [torch.randn(64, 32), torch.randn(32)]
+    grads = [[torch.randn_like(w) for w in weights] for _ in range(6)]
+
+    def run(fused_from: int | None):
+        params = [w.clone().requires_grad_(True) for w in weights]
+        optimizer = torch.optim.Adam(params, lr=1e-2, eps=1e-5)
+        for i, step_grads in enumerate(grads):
+            if i == fused_from:  # resume: the default Adam's state in the fused optimizer PPO builds
+                state = optimizer.state_dict()
+                optimizer = make_optimizer(params, lr=1e-2)
+                optimizer.load_state_dict(state)
+            for p, g in zip(params, step_grads, strict=True):
+                p.grad = g.clone()
+            optimizer.step()
+        return params, optimizer
+
+    reference, _ = run(fused_from=None)
+    resumed, optimizer = run(fused_from=3)
+    assert optimizer.defaults["fused"]
+    for a, b in zip(reference, resumed, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(reference[0], weights[0])  # the steps moved the weights

@@ -18,6 +18,12 @@ from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.lr_schedule import AdaptiveKLSchedule
 
 
+def make_optimizer(params, lr: float) -> torch.optim.Adam:
+    """PPO's optimizer: Adam with rl_games' eps, fused into one kernel over every parameter (about 4x faster
+    per step than torch's default on CPU, tools/bench_optimizer.py; the same arithmetic)."""
+    return torch.optim.Adam(params, lr=lr, eps=1e-5, fused=True)
+
+
 class _OneItem(Dataset):
     """Lightning needs a dataloader; each epoch is one PPO iteration."""
 
@@ -91,7 +97,7 @@ class PPO(L.LightningModule):
 
     def configure_optimizers(self):
         params = [p for p in self.policy.parameters() if p.requires_grad]
-        return torch.optim.Adam(params, lr=self.hp["lr"], eps=1e-5)
+        return make_optimizer(params, self.hp["lr"])
 
     def on_train_start(self):
         n = self.envs.num_envs
