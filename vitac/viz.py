@@ -64,14 +64,13 @@ def policy_actor(policy) -> Callable[[dict], np.ndarray]:
     """Deterministic (mean) actions of a recurrent policy, carrying its state across calls."""
     import torch
 
-    device = policy.device
-    memory = {"state": policy.initial_state(1, device), "starts": torch.ones(1, 1, device=device)}
+    memory = {"state": policy.initial_state(1, policy.device), "starts": torch.ones(1)}
 
     @torch.inference_mode()
     def act(obs: dict) -> np.ndarray:
-        obs_t = {k: torch.as_tensor(v)[None, None].to(device) for k, v in obs.items()}
-        mean, _, _, memory["state"] = policy(obs_t, memory["state"], memory["starts"])
-        memory["starts"] = torch.zeros(1, 1, device=device)
+        obs_t, starts = policy.step_inputs({k: np.asarray(v)[None] for k, v in obs.items()}, memory["starts"])
+        mean, _, _, memory["state"] = policy(obs_t, memory["state"], starts)
+        memory["starts"] = torch.zeros(1)
         return mean[0, 0].cpu().numpy()
 
     return act

@@ -67,6 +67,12 @@ class VisuoTactilePolicy(nn.Module):
     def device(self) -> torch.device:
         return next(self.parameters()).device
 
+    def step_inputs(self, obs: dict, starts: torch.Tensor) -> tuple[dict, torch.Tensor]:
+        """One time step of observations (B, ...) (numpy or CPU tensors) and start flags (B,) as (1, B, ...)
+        inputs on this policy's device."""
+        device = self.device
+        return {k: torch.as_tensor(v)[None].to(device) for k, v in obs.items()}, starts[None].to(device)
+
     def initial_state(self, batch: int, device=None):
         return self.head.initial_state(batch, device)
 

@@ -25,8 +25,8 @@ def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = T
         state, starts = policy.initial_state(n, device), torch.ones(n)
         done = np.zeros(n, dtype=bool)
         while not done.all():
-            obs_t = {k: torch.as_tensor(v)[None].to(device) for k, v in obs.items()}
-            mean, log_std, _, state = policy(obs_t, state, starts[None].to(device))
+            obs_t, starts_t = policy.step_inputs(obs, starts)
+            mean, log_std, _, state = policy(obs_t, state, starts_t)
             action = mean[0].cpu()
             if not deterministic:
                 action = action + log_std[0].cpu().exp() * torch.randn(action.shape, generator=generator)

@@ -135,14 +135,10 @@ class PPO(L.LightningModule):
     def _to_torch(obs: dict) -> dict:
         return {k: torch.as_tensor(v) for k, v in obs.items()}
 
-    def _step_inputs(self, obs: dict, starts: torch.Tensor) -> tuple[dict, torch.Tensor]:
-        """One time step of CPU observations (B, ...) and start flags (B,) as (1, B, ...) policy inputs."""
-        return {k: v[None].to(self.device) for k, v in obs.items()}, starts[None].to(self.device)
-
     @torch.no_grad()
     def _value(self, obs: dict, state, starts) -> torch.Tensor:
         """Raw-scale value (on the CPU) of one step of observations (B, ...)."""
-        inputs, starts = self._step_inputs(obs, starts)
+        inputs, starts = self.policy.step_inputs(obs, starts)
         _, _, value, _ = self.policy(inputs, state, starts)
         return self._raw(value[0]).cpu()
 
@@ -161,7 +157,7 @@ class PPO(L.LightningModule):
         for t in range(hp["horizon"]):
             if t % hp["seq_len"] == 0:
                 buf.chunk_states[t // hp["seq_len"]] = (self._state[0].cpu().clone(), self._state[1].cpu().clone())
-            inputs, starts = self._step_inputs(obs, self._starts)
+            inputs, starts = self.policy.step_inputs(obs, self._starts)
             mean, log_std, value, next_state = self.policy(inputs, self._state, starts)
             mean, log_std, value = mean[0].cpu(), log_std[0].cpu(), self._raw(value[0]).cpu()
             action = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
