@@ -109,6 +109,31 @@ def test_adaptive_lr_follows_rl_games_rule_within_bounds():
         make_lr_schedule("adaptive", 0.0)
 
 
+def test_adaptive_lr_moves_at_its_boundary_on_the_mean_kl_since_it_last_moved():
+    kls = [0.001, 0.05, 0.001, 0.001]  # two mini-epochs of two minibatches; threshold 0.01: 0.005 < ok < 0.02
+
+    def run(every: str) -> list[float]:
+        schedule, lr, rates = AdaptiveKLSchedule(kl_threshold=0.01, every=every), 1e-3, []
+        for epoch in range(2):
+            for kl in kls[2 * epoch:2 * epoch + 2]:
+                lr = schedule.after_minibatch(lr, kl)
+                rates.append(lr)
+            lr = schedule.after_mini_epoch(lr)
+            rates.append(lr)
+        rates.append(schedule.after_iteration(lr))
+        return rates
+
+    # minibatch: x1.5, /1.5, x1.5, x1.5 on each KL; the boundaries after them change nothing.
+    assert run("minibatch") == pytest.approx([1.5e-3, 1e-3, 1e-3, 1.5e-3, 2.25e-3, 2.25e-3, 2.25e-3])
+    # mini_epoch: mean 0.0255 > 0.02 -> /1.5 after the first, mean 0.001 -> x1.5 after the second.
+    assert run("mini_epoch") == pytest.approx([1e-3, 1e-3, 1e-3 / 1.5, 1e-3 / 1.5, 1e-3 / 1.5, 1e-3, 1e-3])
+    # iteration: the mean of all four, 0.01325, is within the band: unchanged.
+    assert run("iteration") == pytest.approx([1e-3] * 7)
+    with pytest.raises(ValueError, match=r"algo.lr_schedule_every='epoch' is not allowed: expected one of "
+                                         r"minibatch, mini_epoch, iteration"):
+        make_lr_schedule("adaptive", 0.01, "epoch")
+
+
 def test_fused_adam_continues_a_default_adam_state_with_the_same_arithmetic():
     """Checkpoints written before PPO's optimizer was fused resume with it, and both step alike."""
     torch.manual_seed(0)

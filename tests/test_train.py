@@ -164,7 +164,7 @@ def test_init_ckpt_adds_contact_forces_with_zero_weights_so_the_warm_policy_acts
     assert Path(run["checkpoint"]).is_file()
 
 
-def test_adaptive_lr_schedule_steps_after_every_minibatch_and_fixed_keeps_lr(tmp_path):
+def test_adaptive_lr_schedule_steps_after_every_minibatch_or_at_its_boundary_and_fixed_keeps_lr(tmp_path):
     base = ["preset=smoke", "obs=privileged"]
     lr = compose_config(base).algo.lr
     steps = 2 * 2  # smoke: 2 mini-epochs of 2 minibatches per iteration
@@ -173,6 +173,12 @@ def test_adaptive_lr_schedule_steps_after_every_minibatch_and_fixed_keeps_lr(tmp
     run = train(compose_config(base + ["algo.lr_schedule=adaptive", "algo.kl_threshold=1e9"], output_dir=tmp_path / "a"))
     logged = [float(r["charts/lr"]) for r in _rows(run["metrics_csv"]) if r.get("charts/lr")]
     assert logged == pytest.approx([lr * 1.5 ** steps, lr * 1.5 ** (2 * steps)])
+    # Moved once per mini-epoch, or once per iteration, on the mean KL.
+    for every, moves in (("mini_epoch", 2), ("iteration", 1)):
+        per = train(compose_config(base + ["algo.lr_schedule=adaptive", "algo.kl_threshold=1e9",
+                                           f"algo.lr_schedule_every={every}"], output_dir=tmp_path / every))
+        logged = [float(r["charts/lr"]) for r in _rows(per["metrics_csv"]) if r.get("charts/lr")]
+        assert logged == pytest.approx([lr * 1.5 ** moves, lr * 1.5 ** (2 * moves)])
     fixed = train(compose_config(base, output_dir=tmp_path / "f"))
     assert [float(r["charts/lr"]) for r in _rows(fixed["metrics_csv"]) if r.get("charts/lr")] == pytest.approx([lr, lr])
     # The learning curves of one branch with the other overlaid, the KL and learning-rate panel included.

@@ -91,7 +91,7 @@ def train(cfg: DictConfig) -> dict:
     num_envs, num_workers, step_in_main = algo.pop("num_envs"), algo.pop("num_workers"), algo.pop("step_in_main")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every, video_every = algo.pop("save_every"), algo.pop("eval_video_every")
-    lr_schedule = make_lr_schedule(algo.pop("lr_schedule"), algo.pop("kl_threshold"))
+    lr_schedule = make_lr_schedule(algo.pop("lr_schedule"), algo.pop("kl_threshold"), algo.pop("lr_schedule_every"))
     curriculum_settings = algo.pop("curriculum")
     curriculum = None
     if curriculum_settings.pop("enabled"):

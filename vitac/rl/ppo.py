@@ -55,8 +55,9 @@ class PPO(L.LightningModule):
         rollout_threads, update_threads: torch threads while collecting and while updating.
         run_config: the resolved run config, stored in checkpoints so evaluation can rebuild the policy.
         curriculum: optional schedule of the training envs' randomization scale.
-        lr_schedule: optional adaptive learning rate (rl_games' `adaptive`), updated after every minibatch step;
-            None keeps `lr` fixed (TacSL's actor). The current rate is saved in checkpoints with the optimizer.
+        lr_schedule: optional adaptive learning rate (rl_games' `adaptive`), moved after every minibatch step,
+            mini-epoch or iteration (its `every`); None keeps `lr` fixed (TacSL's actor). The current rate is
+            saved in checkpoints with the optimizer.
     """
 
     def __init__(self, policy: VisuoTactilePolicy, envs, horizon: int = 512, seq_len: int = 128,
@@ -223,6 +224,15 @@ class PPO(L.LightningModule):
         return dict(loss=total, policy_loss=pg_loss, value_loss=v_loss, entropy=entropy, bounds_loss=b_loss,
                     sym_loss=sym_loss, approx_kl=approx_kl, clipfrac=clipfrac, advantages=advantages)
 
+    @staticmethod
+    def _lr(optimizer) -> float:
+        return optimizer.param_groups[0]["lr"]
+
+    @staticmethod
+    def _set_lr(optimizer, lr: float) -> None:
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+
     def training_step(self, batch, batch_idx):
         hp = self.hp
         iteration_start = time.perf_counter()
@@ -247,20 +257,22 @@ class PPO(L.LightningModule):
                     continue
                 optimizer.step()
                 if self.lr_schedule is not None:
-                    lr = self.lr_schedule.update(optimizer.param_groups[0]["lr"], float(terms["approx_kl"]))
-                    for group in optimizer.param_groups:
-                        group["lr"] = lr
+                    self._set_lr(optimizer, self.lr_schedule.after_minibatch(self._lr(optimizer), float(terms["approx_kl"])))
                 count += 1
                 for k in ("loss", "policy_loss", "value_loss", "entropy", "bounds_loss", "sym_loss", "approx_kl",
                           "clipfrac"):
                     sums[k] = sums.get(k, 0.0) + float(terms[k].detach())
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
+            if self.lr_schedule is not None:
+                self._set_lr(optimizer, self.lr_schedule.after_mini_epoch(self._lr(optimizer)))
+        if self.lr_schedule is not None:
+            self._set_lr(optimizer, self.lr_schedule.after_iteration(self._lr(optimizer)))
         if hp["normalize_input"]:  # after the update, so rollout and update saw the same statistics
             self.policy.update_normalizers({k: v.reshape(-1, *v.shape[2:]) for k, v in self.buffer.obs.items()})
         skipped = sums.pop("skipped_updates", 0.0)
         metrics.update({f"losses/{k}": v / max(count, 1) for k, v in sums.items()})
         metrics["losses/skipped_updates"] = skipped
-        metrics["charts/lr"] = optimizer.param_groups[0]["lr"]
+        metrics["charts/lr"] = self._lr(optimizer)
         values, returns = self.buffer.values.flatten(), self.buffer.returns.flatten()
         metrics["losses/explained_variance"] = losses.explained_variance(values, returns)
         steps = hp["horizon"] * self.envs.num_envs
