@@ -17,20 +17,9 @@ import time
 from pathlib import Path
 
 import torch
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-
-from vitac.envs.config import InsertionConfig
-from vitac.train import build_policy_from_config, env_settings
+from bench_policy import policy_from_overrides  # tools/ is the script's directory
 
 POLICIES = {"privileged": ["obs=privileged"], "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"]}
-
-
-def make_policy(overrides: list) -> torch.nn.Module:
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
-        cfg = compose("config", overrides=overrides)
-    return build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
 
 
 def copy_with_grads(params: list) -> list:
@@ -71,7 +60,7 @@ def main():
     torch.manual_seed(0)
     rows = []
     for name, overrides in POLICIES.items():
-        params = [p for p in make_policy(overrides).parameters() if p.requires_grad]
+        params = [p for p in policy_from_overrides(overrides).parameters() if p.requires_grad]
         for p in params:
             p.grad = torch.randn_like(p)
         compare(params, steps=20)  # warm-up

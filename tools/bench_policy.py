@@ -22,7 +22,8 @@ from vitac.envs.config import InsertionConfig, observation_shapes
 PAPER = {"naive": (5.42, 19.24, 184.50), "gated": (5.51, 17.43, 181.49), "cmt": (6.52, 21.45, 153.37)}
 
 
-def make_policy(fusion: str):
+def policy_from_overrides(overrides: list):
+    """The policy `python -m vitac.train <overrides>` would train, freshly initialised."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
@@ -30,8 +31,12 @@ def make_policy(fusion: str):
 
     GlobalHydra.instance().clear()
     with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
-        cfg = compose("config", overrides=["obs=wrist_tactile", f"fusion={fusion}", "reg=sym", "critic=none"])
-    return build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg))).eval()
+        cfg = compose("config", overrides=overrides)
+    return build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+
+
+def make_policy(fusion: str):
+    return policy_from_overrides(["obs=wrist_tactile", f"fusion={fusion}", "reg=sym", "critic=none"]).eval()
 
 
 def inputs(batch: int, device):

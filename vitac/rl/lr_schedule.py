@@ -69,5 +69,7 @@ def make_lr_schedule(name: str, kl_threshold: float, every: str = "minibatch") -
     """`algo.lr_schedule` -> a schedule (None: the learning rate stays fixed), checked before any simulation."""
     if name not in LR_SCHEDULES:
         raise ValueError(f"algo.lr_schedule={name!r} is not allowed: expected one of {', '.join(LR_SCHEDULES)}")
-    check_every(every)
-    return AdaptiveKLSchedule(kl_threshold, every) if name == "adaptive" else None
+    if name == "adaptive":
+        return AdaptiveKLSchedule(kl_threshold, every)
+    check_every(every)  # a typo is refused even while the rate is fixed
+    return None
