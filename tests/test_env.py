@@ -107,6 +107,67 @@ def test_same_seed_same_episode():
     b.close()
 
 
+def test_one_call_substeps_follow_composers_substep_loop_bit_for_bit():
+    from dm_control import composer
+
+    from vitac.envs.insertion import InsertionEnvironment, InsertionTask
+
+    settings = InsertionConfig.from_dict({"observations": ["proprio", "critic_state"]})
+    kwargs = dict(random_state=3, time_limit=float("inf"), strip_singleton_obs_buffer_dim=True,
+                  raise_exception_on_physics_error=False, recompile_mjcf_every_episode=False)
+    ours, composers = (cls(InsertionTask(settings), **kwargs) for cls in (InsertionEnvironment, composer.Environment))
+    rng = np.random.default_rng(0)
+    ours.reset()
+    composers.reset()
+    for t in range(300):  # random and straight-down actions, across an episode's end and reset
+        action = rng.uniform(-1, 1, 6) if t % 2 else np.array([0, 0, -1.0, 0, 0, 0])
+        a, b = ours.step(action), composers.step(action)
+        assert a.step_type == b.step_type and a.reward == b.reward
+        for k in a.observation:
+            np.testing.assert_array_equal(a.observation[k], b.observation[k])
+    np.testing.assert_array_equal(ours.physics.get_state(), composers.physics.get_state())
+    ours.close()
+    composers.close()
+
+
+def test_one_call_substeps_refuse_substep_hooks():
+    from vitac.envs.insertion import InsertionEnvironment, InsertionTask
+
+    env = InsertionEnvironment(InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]})))
+    with pytest.raises(ValueError, match="hook_name='after_substep' is not allowed"):
+        env.add_extra_hook("after_substep", lambda physics, random_state: None)
+    env.close()
+    task = InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]}))
+    task.observables["proprio"].buffer_size = 3
+    with pytest.raises(ValueError, match=r"sample observables \['proprio'\]"):
+        InsertionEnvironment(task)
+
+
+def test_rotation_helpers_match_scipy_and_an_action_turns_the_hand_about_world_axes():
+    from scipy.spatial.transform import Rotation
+
+    from vitac.envs.insertion import _DOWN, axis_angle_matrix, euler_zyx_from_matrix, matrix_from_euler_zyx
+
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        rotvec, euler = rng.normal(size=3) * 0.5, rng.uniform(-1.2, 1.2, 3)
+        np.testing.assert_allclose(axis_angle_matrix(rotvec), Rotation.from_rotvec(rotvec).as_matrix(), atol=1e-12)
+        matrix = matrix_from_euler_zyx(*euler)
+        np.testing.assert_allclose(matrix, Rotation.from_euler("ZYX", euler).as_matrix(), atol=1e-12)
+        np.testing.assert_allclose(euler_zyx_from_matrix(matrix), euler, atol=1e-12)
+    # The rotation part of an action is an axis-angle delta in the world frame applied to the hand's orientation.
+    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e.reset(seed=4)
+    task, physics = e.task, e.physics
+    action = np.array([0.0, 0.0, 0.0, 0.7, -0.4, 0.9])
+    hinges = physics.data.qpos[task._ids["hand_qpos"]][3:].copy()
+    task.before_step(physics, action, None)
+    target = physics.data.ctrl[task._ids["hand_act"]][3:]
+    expected = axis_angle_matrix(action[3:] * task.config.rot_action_scale) @ _DOWN @ matrix_from_euler_zyx(*hinges)
+    np.testing.assert_allclose(_DOWN @ matrix_from_euler_zyx(*target), expected, atol=1e-12)
+    e.close()
+
+
 def test_state_round_trip_continues_exactly():
     e = InsertionEnv({"observations": ["proprio", "tactile_left"]}, seed=0)
     e.reset(seed=5)
@@ -344,26 +405,37 @@ def test_oracle_success_over_200_episodes_is_at_least_95_percent():
 def test_contact_forces_stay_finite_and_match_a_fresh_solve():
     import mujoco
 
+    from vitac.envs.oracle import OracleController
+
     e = InsertionEnv({"observations": ["proprio", "contact_forces"]}, seed=0)
-    rng = np.random.default_rng(0)
-    for ep in range(3):
+    rng, oracle = np.random.default_rng(0), OracleController(e.task)
+    for ep in range(3):  # random actions, then the oracle: the last state presses the peg into the socket
         e.reset(seed=20 + ep)
         for _ in range(120):
-            obs, *_ = e.step(rng.uniform(-1, 1, 6) if ep else np.array([0, 0, -1.0, 0, 0, 0]))
+            obs, *_ = e.step(rng.uniform(-1, 1, 6) if ep < 2 else oracle(e.physics))
             assert np.all(np.isfinite(obs["contact_forces"]))
-    # The reported forces equal those of a full forward pass on the same state.
+    # Each slot (socket, left pad, right pad) equals mj_contactForce's sum over a full forward pass on the same state.
     m, d = e.physics.model.ptr, e.physics.data.ptr
     fresh = mujoco.MjData(m)
     fresh.qpos[:], fresh.qvel[:], fresh.ctrl[:], fresh.mocap_pos[:] = d.qpos, d.qvel, d.ctrl, d.mocap_pos
     fresh.qacc_warmstart[:] = d.qacc_warmstart
     mujoco.mj_forward(m, fresh)
-    total = np.zeros(3)
+    slot_of = {"gripper/left_pad": 1, "gripper/right_pad": 2}
+    expected = np.zeros((3, 3))
     for i in range(fresh.ncon):
         c = fresh.contact[i]
-        if m.geom(c.geom1).name.startswith("peg") or m.geom(c.geom2).name.startswith("peg"):
-            f = np.zeros(6)
-            mujoco.mj_contactForce(m, fresh, i, f)
-            world = c.frame.reshape(3, 3).T @ f[:3]
-            total += world if m.geom(c.geom2).name.startswith("peg") else -world
-    np.testing.assert_allclose(obs["contact_forces"].reshape(3, 3).sum(0), total, rtol=1e-3, atol=1e-3)
+        names = m.geom(c.geom1).name, m.geom(c.geom2).name
+        peg_second = names[1].startswith("peg")
+        if peg_second == names[0].startswith("peg"):
+            continue
+        other = names[0] if peg_second else names[1]
+        slot = 0 if other.startswith("socket") else slot_of.get(other)
+        if slot is None:
+            continue
+        f = np.zeros(6)
+        mujoco.mj_contactForce(m, fresh, i, f)
+        world = c.frame.reshape(3, 3).T @ f[:3]
+        expected[slot] += world if peg_second else -world
+    assert np.abs(expected).min(axis=1).max() > 0 and np.linalg.norm(expected[0]) > 0.1  # the peg is on the socket
+    np.testing.assert_allclose(obs["contact_forces"].reshape(3, 3), expected, rtol=1e-3, atol=1e-3)
     e.close()

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 import mujoco
+import numba
 import numpy as np
 from dm_control import composer
 from dm_control.composer.observation import observable
@@ -39,25 +42,32 @@ class Arena(composer.Arena):
                                       fovy=45)
 
 
-def euler_zyx_from_matrix(m: np.ndarray) -> np.ndarray:
+# Scalar math (`math`, not numpy ufuncs on 0-d values): these run at every control step.
+def euler_zyx_from_matrix(m: np.ndarray) -> tuple[float, float, float]:
     """(yaw, pitch, roll) with m = Rz(yaw) Ry(pitch) Rx(roll)."""
-    return np.array([np.arctan2(m[1, 0], m[0, 0]), -np.arcsin(np.clip(m[2, 0], -1, 1)), np.arctan2(m[2, 1], m[2, 2])])
+    return (math.atan2(m[1, 0], m[0, 0]), -math.asin(min(max(m[2, 0], -1.0), 1.0)), math.atan2(m[2, 1], m[2, 2]))
 
 
 def matrix_from_euler_zyx(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    cy, sy, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
     return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
                      [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
                      [-sp, cp * sr, cp * cr]])
 
 
-def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
-    angle = np.linalg.norm(rotvec)
+def axis_angle_matrix(rotvec) -> np.ndarray:
+    """Rotation matrix of an axis-angle vector (Rodrigues)."""
+    x, y, z = float(rotvec[0]), float(rotvec[1]), float(rotvec[2])
+    angle = math.sqrt(x * x + y * y + z * z)
     if angle <= 1e-6:  # TacSL's clamp_rot_thresh: below it the delta is the identity
         return np.eye(3)
-    k = rotvec / angle
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
+    x, y, z = x / angle, y / angle, z / angle
+    s, c = math.sin(angle), math.cos(angle)
+    t = 1.0 - c
+    return np.array([[c + t * x * x, t * x * y - s * z, t * x * z + s * y],
+                     [t * x * y + s * z, c + t * y * y, t * y * z - s * x],
+                     [t * x * z - s * y, t * y * z + s * x, c + t * z * z]])
 
 
 def rotation_vector(m: np.ndarray) -> np.ndarray:
@@ -71,6 +81,30 @@ def rotation_vector(m: np.ndarray) -> np.ndarray:
 
 def keypoint_offsets(num: int, scale: float) -> np.ndarray:
     return (np.linspace(0.0, 1.0, num) - 0.5) * scale
+
+
+@numba.njit(cache=True)
+def _peg_contact_forces(pairs, efc_address, dim, frames, efc_force, peg_geom_mask, contact_slot):
+    """World-frame force on the peg from each slot's geoms (slot 0 socket, 1 left pad, 2 right pad), summed (3, 3).
+
+    With elliptic cones (the arena's) a contact's force in its own frame is its first `dim` rows of efc_force
+    (what mj_contactForce copies): normal, then the two tangential components. One compiled loop instead of
+    ~3 us of Python per contact.
+    """
+    out = np.zeros((3, 3))
+    for i in range(pairs.shape[0]):
+        peg_first, peg_second = peg_geom_mask[pairs[i, 0]], peg_geom_mask[pairs[i, 1]]
+        if peg_first == peg_second or efc_address[i] < 0:
+            continue
+        slot = contact_slot[pairs[i, 0]] if peg_second else contact_slot[pairs[i, 1]]
+        if slot < 0:
+            continue
+        sign = 1.0 if peg_second else -1.0  # the frame's force is geom1's on geom2
+        for j in range(min(dim[i], 3)):
+            f = sign * efc_force[efc_address[i] + j]
+            for k in range(3):
+                out[slot, k] += frames[i, 3 * j + k] * f
+    return out
 
 
 class InsertionTask(composer.Task):
@@ -221,13 +255,15 @@ class InsertionTask(composer.Task):
         target = np.empty(6)
         target[:3] = qpos[:3] + action[:3] * cfg.pos_action_scale
         # Rotation delta: axis-angle in the world frame applied to the current orientation (TacSL).
-        current = _DOWN @ matrix_from_euler_zyx(*qpos[3:])
-        desired = axis_angle_matrix(action[3:] * cfg.rot_action_scale) @ current
-        yaw, pitch, roll = euler_zyx_from_matrix(_DOWN.T @ desired)
-        yaw = qpos[3] + (yaw - qpos[3] + np.pi) % (2 * np.pi) - np.pi  # no wrap-around jumps
+        # The hinges' angles give the orientation relative to _DOWN, in which the delta is _DOWN.T @ rotvec
+        # (_DOWN.T R(w) _DOWN = R(_DOWN.T w)).
+        rotvec = _DOWN.T @ (action[3:] * cfg.rot_action_scale)
+        yaw, pitch, roll = euler_zyx_from_matrix(axis_angle_matrix(rotvec) @ matrix_from_euler_zyx(*qpos[3:]))
+        yaw = qpos[3] + (yaw - qpos[3] + math.pi) % (2 * math.pi) - math.pi  # no wrap-around jumps
         target[3:] = (yaw, pitch, roll)
         physics.data.ctrl[ids["hand_act"]] = target
-        self._action_delta = np.linalg.norm(action - self._prev_action)
+        change = action - self._prev_action
+        self._action_delta = math.sqrt(change @ change)
         self._prev_action = action
 
     def after_step(self, physics, random_state):
@@ -271,12 +307,12 @@ class InsertionTask(composer.Task):
         return self._per_state("keypoint_distance", physics, lambda: self._keypoint_distance(physics))
 
     def _keypoint_distance(self, physics) -> float:
-        peg_pos = physics.data.xpos[self._ids["peg_body"]]
-        peg_z = physics.data.xmat[self._ids["peg_body"]].reshape(3, 3)[:, 2]
-        socket_pos = self.socket_pos(physics)
-        peg_kp = peg_pos + self._keypoints[:, None] * peg_z
-        goal_kp = socket_pos + self._keypoints[:, None] * np.array([0.0, 0.0, 1.0])
-        return float(np.linalg.norm(peg_kp - goal_kp, axis=1).mean())
+        d, peg = physics.data, self._ids["peg_body"]
+        # Keypoint i is at pos + offset_i * z on each: their difference is delta_pos + offset_i * delta_z.
+        delta_pos = d.xpos[peg] - d.mocap_pos[self._ids["socket_mocap"]]
+        delta_z = d.xmat[peg][2::3] - (0.0, 0.0, 1.0)  # the peg's z axis (xmat is row-major) minus the goal's
+        differences = delta_pos + self._keypoints[:, None] * delta_z
+        return float(np.sqrt(np.square(differences).sum(axis=1)).mean())
 
     def is_success(self, physics) -> bool:
         return self.keypoint_distance(physics) < self.config.success_threshold
@@ -372,21 +408,9 @@ class InsertionTask(composer.Task):
         # dm_control ends each step with mj_step1: the contact list is new but efc_force still belongs to
         # the previous contacts (stale or uninitialised rows). Solve the constraint forces for this state.
         mujoco.mj_forwardSkip(m.ptr, d.ptr, mujoco.mjtStage.mjSTAGE_VEL, 0)
-        out = np.zeros((3, 3))
-        # Vectorised filter over the contact list (dm_control's per-contact wrapper costs ~3 us an access).
-        pairs = d.ptr.contact.geom  # (ncon, 2)
-        on_peg = self._peg_geom_mask[pairs]  # (ncon, 2)
-        slots = self._contact_slot[pairs]  # the other geom's slot: 0 socket, 1 left pad, 2 right pad, -1 other
-        frames = d.ptr.contact.frame  # (ncon, 9): each contact's frame, normal first
-        force = np.empty(6)
-        for i in np.flatnonzero(on_peg.any(axis=1)):
-            peg_is_second = bool(on_peg[i, 1])
-            slot = slots[i, 0] if peg_is_second else slots[i, 1]
-            if slot < 0:
-                continue
-            mujoco.mj_contactForce(m.ptr, d.ptr, i, force)
-            world = frames[i].reshape(3, 3).T @ force[:3]  # force of geom1 on geom2
-            out[slot] += world if peg_is_second else -world
+        con = d.ptr.contact
+        out = _peg_contact_forces(con.geom, con.efc_address, con.dim, con.frame, d.ptr.efc_force,
+                                  self._peg_geom_mask, self._contact_slot)
         return out.ravel().astype(np.float32)
 
     def render_wrist(self, physics) -> np.ndarray:
@@ -454,6 +478,41 @@ class InsertionTask(composer.Task):
             self._observables[name] = obs
 
 
+class InsertionEnvironment(composer.Environment):
+    """composer's Environment running each control step's physics substeps as one `physics.step(n)` call.
+
+    Between substeps composer calls the substep hooks and the observation updater. This task and its entities
+    have no substep hooks, and each observable keeps one value taken after the last substep (composer schedules
+    no earlier update of it), so MuJoCo's own loop gives the same trajectory bit for bit (tested) without eight
+    Python round trips through composer and dm_control per control step (docs/benchmarks.md).
+    """
+
+    def __init__(self, task: composer.Task, **kwargs):
+        substep_hooks = [f"{type(owner).__name__}.{hook}" for owner, base in
+                         [(task, composer.Task)] + [(e, composer.Entity) for e in task.root_entity.iter_entities()]
+                         for hook in ("before_substep", "after_substep")
+                         if getattr(type(owner), hook) is not getattr(base, hook)]
+        sampled = [name for name, obs in task.observables.items()
+                   if obs.update_interval != 1 or obs.buffer_size not in (None, 1) or obs.delay not in (None, 0)]
+        if substep_hooks or sampled:
+            raise ValueError(f"{type(self).__name__} steps the physics substeps in one call: it cannot run substep "
+                             f"hooks {substep_hooks} or sample observables {sampled} between substeps")
+        super().__init__(task, **kwargs)
+        self._substeps_done = 0
+
+    def add_extra_hook(self, hook_name, hook_callable):
+        if hook_name in ("before_substep", "after_substep"):
+            raise ValueError(f"hook_name={hook_name!r} is not allowed: {type(self).__name__} steps the physics "
+                             "substeps in one call")
+        super().add_extra_hook(hook_name, hook_callable)
+
+    def _substep(self, action):
+        # composer calls this n times per control step: the first call steps all n substeps, the rest do nothing.
+        if self._substeps_done == 0:
+            self._physics.step(self._n_sub_steps)
+        self._substeps_done = (self._substeps_done + 1) % self._n_sub_steps
+
+
 def build_environment(config: InsertionConfig, seed: int | None = None,
                       offscreen_size: int | None = None) -> composer.Environment:
     """A composer Environment whose episodes last `episode_steps` control steps."""
@@ -461,6 +520,5 @@ def build_environment(config: InsertionConfig, seed: int | None = None,
     # The task randomizes model fields in place and never edits the MJCF: recompiling it at every reset (composer's
     # default) would only cost ~25 ms an episode. A diverged simulation (rare: a peg wedged between stiff contacts)
     # ends its episode as a termination with reward 0, which the adapter reports, instead of killing a long run.
-    return composer.Environment(task, random_state=seed, time_limit=float("inf"), strip_singleton_obs_buffer_dim=True,
+    return InsertionEnvironment(task, random_state=seed, time_limit=float("inf"), strip_singleton_obs_buffer_dim=True,
                                 raise_exception_on_physics_error=False, recompile_mjcf_every_episode=False)
-
