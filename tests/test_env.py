@@ -168,6 +168,22 @@ def test_rotation_helpers_match_scipy_and_an_action_turns_the_hand_about_world_a
     e.close()
 
 
+def test_keypoint_distance_is_the_mean_distance_between_matching_keypoints():
+    from scipy.spatial.transform import Rotation
+
+    from vitac.envs.insertion import keypoint_offsets, mean_keypoint_distance
+
+    rng = np.random.default_rng(1)
+    offsets = keypoint_offsets(4, 0.5)
+    for _ in range(20):
+        peg_pos, goal_pos = rng.normal(size=3) * 0.05, rng.normal(size=3) * 0.05
+        peg_rot = Rotation.from_rotvec(rng.normal(size=3) * 0.3).as_matrix()
+        peg_points = peg_pos + offsets[:, None] * peg_rot[:, 2]
+        goal_points = goal_pos + offsets[:, None] * np.array([0.0, 0.0, 1.0])
+        expected = np.linalg.norm(peg_points - goal_points, axis=1).mean()
+        assert mean_keypoint_distance(peg_pos, peg_rot.ravel(), goal_pos, offsets) == pytest.approx(expected, rel=1e-12)
+
+
 def test_state_round_trip_continues_exactly():
     e = InsertionEnv({"observations": ["proprio", "tactile_left"]}, seed=0)
     e.reset(seed=5)

@@ -42,12 +42,14 @@ class Arena(composer.Arena):
                                       fovy=45)
 
 
-# Scalar math (`math`, not numpy ufuncs on 0-d values): these run at every control step.
+# Compiled (numba): these run at every control step, where numpy's per-call overhead on 3-vectors would dominate.
+@numba.njit(cache=True)
 def euler_zyx_from_matrix(m: np.ndarray) -> tuple[float, float, float]:
     """(yaw, pitch, roll) with m = Rz(yaw) Ry(pitch) Rx(roll)."""
     return (math.atan2(m[1, 0], m[0, 0]), -math.asin(min(max(m[2, 0], -1.0), 1.0)), math.atan2(m[2, 1], m[2, 2]))
 
 
+@numba.njit(cache=True)
 def matrix_from_euler_zyx(yaw: float, pitch: float, roll: float) -> np.ndarray:
     cy, sy, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
     cr, sr = math.cos(roll), math.sin(roll)
@@ -56,18 +58,47 @@ def matrix_from_euler_zyx(yaw: float, pitch: float, roll: float) -> np.ndarray:
                      [-sp, cp * sr, cp * cr]])
 
 
-def axis_angle_matrix(rotvec) -> np.ndarray:
+@numba.njit(cache=True)
+def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
     """Rotation matrix of an axis-angle vector (Rodrigues)."""
-    x, y, z = float(rotvec[0]), float(rotvec[1]), float(rotvec[2])
-    angle = math.sqrt(x * x + y * y + z * z)
+    angle = math.sqrt(rotvec[0] ** 2 + rotvec[1] ** 2 + rotvec[2] ** 2)
     if angle <= 1e-6:  # TacSL's clamp_rot_thresh: below it the delta is the identity
         return np.eye(3)
-    x, y, z = x / angle, y / angle, z / angle
+    x, y, z = rotvec[0] / angle, rotvec[1] / angle, rotvec[2] / angle
     s, c = math.sin(angle), math.cos(angle)
     t = 1.0 - c
     return np.array([[c + t * x * x, t * x * y - s * z, t * x * z + s * y],
                      [t * x * y + s * z, c + t * y * y, t * y * z - s * x],
                      [t * x * z - s * y, t * y * z + s * x, c + t * z * z]])
+
+
+@numba.njit(cache=True)
+def hand_target(hand_qpos: np.ndarray, action: np.ndarray, pos_scale: float, rot_scale: float) -> np.ndarray:
+    """The six hand joints' targets for an action in [-1, 1]^6 (clipped): the current pose plus a position delta
+    and an axis-angle delta in the world frame applied to the current orientation (TacSL)."""
+    action = np.minimum(np.maximum(action, -1.0), 1.0)
+    target = np.empty(6)
+    target[:3] = hand_qpos[:3] + action[:3] * pos_scale
+    # The hinges' angles give the orientation relative to _DOWN = diag(1, -1, -1), in which the world-frame
+    # delta w reads _DOWN.T w (_DOWN.T R(w) _DOWN = R(_DOWN.T w)).
+    rotvec = np.array([action[3], -action[4], -action[5]]) * rot_scale
+    current = matrix_from_euler_zyx(hand_qpos[3], hand_qpos[4], hand_qpos[5])
+    yaw, pitch, roll = euler_zyx_from_matrix(axis_angle_matrix(rotvec) @ current)
+    target[3] = hand_qpos[3] + (yaw - hand_qpos[3] + math.pi) % (2 * math.pi) - math.pi  # no wrap-around jumps
+    target[4], target[5] = pitch, roll
+    return target
+
+
+@numba.njit(cache=True)
+def mean_keypoint_distance(peg_pos: np.ndarray, peg_xmat: np.ndarray, goal_pos: np.ndarray, offsets: np.ndarray) -> float:
+    """Mean distance between keypoints at `offsets` along the peg's z axis (xmat row-major) and the goal's (world z)."""
+    total = 0.0
+    for offset in offsets:
+        dx = peg_pos[0] - goal_pos[0] + offset * peg_xmat[2]
+        dy = peg_pos[1] - goal_pos[1] + offset * peg_xmat[5]
+        dz = peg_pos[2] - goal_pos[2] + offset * (peg_xmat[8] - 1.0)
+        total += math.sqrt(dx * dx + dy * dy + dz * dz)
+    return total / offsets.shape[0]
 
 
 def rotation_vector(m: np.ndarray) -> np.ndarray:
@@ -249,19 +280,11 @@ class InsertionTask(composer.Task):
             self._f_ref[:] = self.raw_tactiles(physics)
 
     def before_step(self, physics, action, random_state):
-        cfg, ids = self.config, self._ids
-        action = np.clip(np.asarray(action, float), -1.0, 1.0)
-        qpos = physics.data.qpos[ids["hand_qpos"]]
-        target = np.empty(6)
-        target[:3] = qpos[:3] + action[:3] * cfg.pos_action_scale
-        # Rotation delta: axis-angle in the world frame applied to the current orientation (TacSL).
-        # The hinges' angles give the orientation relative to _DOWN, in which the delta is _DOWN.T @ rotvec
-        # (_DOWN.T R(w) _DOWN = R(_DOWN.T w)).
-        rotvec = _DOWN.T @ (action[3:] * cfg.rot_action_scale)
-        yaw, pitch, roll = euler_zyx_from_matrix(axis_angle_matrix(rotvec) @ matrix_from_euler_zyx(*qpos[3:]))
-        yaw = qpos[3] + (yaw - qpos[3] + math.pi) % (2 * math.pi) - math.pi  # no wrap-around jumps
-        target[3:] = (yaw, pitch, roll)
-        physics.data.ctrl[ids["hand_act"]] = target
+        action = np.asarray(action, float)
+        target = hand_target(physics.data.qpos[self._ids["hand_qpos"]], action, self.config.pos_action_scale,
+                             self.config.rot_action_scale)
+        physics.data.ctrl[self._ids["hand_act"]] = target
+        action = np.clip(action, -1.0, 1.0)
         change = action - self._prev_action
         self._action_delta = math.sqrt(change @ change)
         self._prev_action = action
@@ -308,11 +331,7 @@ class InsertionTask(composer.Task):
 
     def _keypoint_distance(self, physics) -> float:
         d, peg = physics.data, self._ids["peg_body"]
-        # Keypoint i is at pos + offset_i * z on each: their difference is delta_pos + offset_i * delta_z.
-        delta_pos = d.xpos[peg] - d.mocap_pos[self._ids["socket_mocap"]]
-        delta_z = d.xmat[peg][2::3] - (0.0, 0.0, 1.0)  # the peg's z axis (xmat is row-major) minus the goal's
-        differences = delta_pos + self._keypoints[:, None] * delta_z
-        return float(np.sqrt(np.square(differences).sum(axis=1)).mean())
+        return mean_keypoint_distance(d.xpos[peg], d.xmat[peg], d.mocap_pos[self._ids["socket_mocap"]], self._keypoints)
 
     def is_success(self, physics) -> bool:
         return self.keypoint_distance(physics) < self.config.success_threshold
