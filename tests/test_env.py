@@ -107,7 +107,7 @@ def test_same_seed_same_episode():
     b.close()
 
 
-def test_one_call_substeps_follow_composers_substep_loop_bit_for_bit():
+def test_lean_control_step_gives_composers_trajectory_and_observations_bit_for_bit():
     from dm_control import composer
 
     from vitac.envs.insertion import InsertionEnvironment, InsertionTask
@@ -130,7 +130,7 @@ def test_one_call_substeps_follow_composers_substep_loop_bit_for_bit():
     composers.close()
 
 
-def test_one_call_substeps_refuse_substep_hooks():
+def test_lean_control_step_refuses_substep_hooks_and_buffered_observables():
     from vitac.envs.insertion import InsertionEnvironment, InsertionTask
 
     env = InsertionEnvironment(InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]})))
@@ -139,7 +139,7 @@ def test_one_call_substeps_refuse_substep_hooks():
     env.close()
     task = InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]}))
     task.observables["proprio"].buffer_size = 3
-    with pytest.raises(ValueError, match=r"sample observables \['proprio'\]"):
+    with pytest.raises(ValueError, match=r"buffer, delay or transform observables \['proprio'\]"):
         InsertionEnvironment(task)
 
 

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import logging
 import math
 
+import dm_env
 import mujoco
 import numba
 import numpy as np
 from dm_control import composer
 from dm_control.composer.observation import observable
+from dm_control.rl import control
 from dm_env import specs
 
 from vitac.envs import props
@@ -308,7 +311,7 @@ class InsertionTask(composer.Task):
         centred = offset < self.peg_geometry.half_x
         if cfg.use_shaped_keypoint_reward and not centred and height < props.HOLE_DEPTH:  # beside the hole, below its top
             kp *= 10.0
-        kp_exp = 1.0 / (np.exp(-50.0 * distance) + 0.0001 + np.exp(50.0 * distance))
+        kp_exp = 1.0 / (math.exp(-50.0 * distance) + 0.0001 + math.exp(50.0 * distance))
         reward = cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
         reward += cfg.success_reward_scale * float(self.is_success(physics))
         return reward - cfg.lateral_reward_scale * offset
@@ -319,7 +322,8 @@ class InsertionTask(composer.Task):
 
     def _per_state(self, name: str, physics, compute):
         """compute(), memoised for the current physics state (several observables and the reward share it)."""
-        key = (physics.data.time, physics.data.qpos.tobytes())
+        data = physics.data.ptr  # MuJoCo's own MjData: cheaper attribute access than dm_control's wrapper
+        key = (data.time, data.qpos.tobytes())
         hit = self._cache.get(name)
         if hit is None or hit[0] != key:
             hit = self._cache[name] = (key, compute())
@@ -339,8 +343,8 @@ class InsertionTask(composer.Task):
     def peg_offset(self, physics) -> tuple[float, float]:
         """The peg's bottom-face centre relative to the goal: horizontal distance from the hole axis and height
         above the hole floor (m)."""
-        delta = physics.data.xpos[self._ids["peg_body"]] - self.socket_pos(physics)
-        return float(np.hypot(delta[0], delta[1])), float(delta[2])
+        delta = physics.data.xpos[self._ids["peg_body"]] - physics.data.mocap_pos[self._ids["socket_mocap"]]
+        return math.hypot(delta[0], delta[1]), float(delta[2])
 
     def outcome(self, physics) -> dict:
         """Where the peg is relative to the goal (`peg_offset`, and its tilt, rad) and what that means, for
@@ -498,26 +502,28 @@ class InsertionTask(composer.Task):
 
 
 class InsertionEnvironment(composer.Environment):
-    """composer's Environment running each control step's physics substeps as one `physics.step(n)` call.
+    """composer's Environment with a leaner control step: the physics substeps in one `physics.step(n)` call and
+    the observation computed once, by the task, after them.
 
     Between substeps composer calls the substep hooks and the observation updater. This task and its entities
-    have no substep hooks, and each observable keeps one value taken after the last substep (composer schedules
-    no earlier update of it), so MuJoCo's own loop gives the same trajectory bit for bit (tested) without eight
-    Python round trips through composer and dm_control per control step (docs/benchmarks.md).
+    have no substep hooks, and each observable keeps one value taken after the last substep (no delay, no
+    buffer), so the trajectory and the observations are composer's own bit for bit (tested), without eight
+    Python round trips through composer and dm_control per control step (docs/benchmarks.md). Reset, specs and
+    the step's hooks, reward, discount, time limit and physics-error handling are composer's (dm-control 1.0.50).
     """
 
-    def __init__(self, task: composer.Task, **kwargs):
+    def __init__(self, task: InsertionTask, **kwargs):
         substep_hooks = [f"{type(owner).__name__}.{hook}" for owner, base in
                          [(task, composer.Task)] + [(e, composer.Entity) for e in task.root_entity.iter_entities()]
                          for hook in ("before_substep", "after_substep")
                          if getattr(type(owner), hook) is not getattr(base, hook)]
         sampled = [name for name, obs in task.observables.items()
-                   if obs.update_interval != 1 or obs.buffer_size not in (None, 1) or obs.delay not in (None, 0)]
+                   if obs.update_interval != 1 or obs.buffer_size not in (None, 1) or obs.delay not in (None, 0)
+                   or obs.aggregator is not None or obs.corruptor is not None]
         if substep_hooks or sampled:
             raise ValueError(f"{type(self).__name__} steps the physics substeps in one call: it cannot run substep "
-                             f"hooks {substep_hooks} or sample observables {sampled} between substeps")
+                             f"hooks {substep_hooks} or buffer, delay or transform observables {sampled}")
         super().__init__(task, **kwargs)
-        self._substeps_done = 0
 
     def add_extra_hook(self, hook_name, hook_callable):
         if hook_name in ("before_substep", "after_substep"):
@@ -525,11 +531,29 @@ class InsertionEnvironment(composer.Environment):
                              "substeps in one call")
         super().add_extra_hook(hook_name, hook_callable)
 
-    def _substep(self, action):
-        # composer calls this n times per control step: the first call steps all n substeps, the rest do nothing.
-        if self._substeps_done == 0:
+    def step(self, action) -> dm_env.TimeStep:
+        if self._reset_next_step:
+            self._reset_next_step = False
+            return self.reset()
+        physics = self._physics_proxy
+        self._hooks.before_step(physics, action, self._random_state)
+        try:
             self._physics.step(self._n_sub_steps)
-        self._substeps_done = (self._substeps_done + 1) % self._n_sub_steps
+            diverged = False
+        except control.PhysicsError as error:
+            if self._raise_exception_on_physics_error:
+                raise
+            logging.warning(error)
+            diverged = True
+        self._hooks.after_step(physics, self._random_state)
+        if diverged:
+            reward, discount, last = 0.0, 0.0, True
+        else:
+            reward, discount = self._task.get_reward(physics), self._task.get_discount(physics)
+            last = self._task.should_terminate_episode(physics) or self._physics.time() >= self._time_limit
+        self._reset_next_step = last
+        return dm_env.TimeStep(dm_env.StepType.LAST if last else dm_env.StepType.MID, reward, discount,
+                               self._task.observe(physics))
 
 
 def build_environment(config: InsertionConfig, seed: int | None = None,
