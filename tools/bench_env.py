@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -106,8 +107,8 @@ def main():
         print(f"| {r['num_envs']} | {r['workers']} | {r['steps_per_s']:.0f} | {r['speedup_vs_one_worker']:.2f}x |")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(dict(single=single, vectorised=rows, command="python tools/bench_env.py"),
-                                        indent=2) + "\n")
+        command = " ".join(["python tools/bench_env.py", *sys.argv[1:]])
+        args.json.write_text(json.dumps(dict(single=single, vectorised=rows, command=command), indent=2) + "\n")
 
 
 if __name__ == "__main__":
