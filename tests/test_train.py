@@ -219,6 +219,21 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
     assert summary[-2].startswith("learning rate range: ") and summary[-1].startswith("explained variance: first ")
 
 
+def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_foreign_csv(tmp_path):
+    older = tmp_path / "older.csv"
+    older.write_text("charts/env_steps,charts/SPS,losses/loss,losses/approx_kl,losses/entropy,charts/success_rate\n"
+                     "1000,900,0.1,0.02,3.0,0.25\n2000,1100,0.1,0.04,2.9,0.75\n")
+    summary = subprocess.run([sys.executable, "tools/run_summary.py", str(older)], check=True, cwd=ROOT,
+                             capture_output=True, text=True).stdout.splitlines()
+    assert summary[:2] == ["env steps: 1,000 -> 2,000 (2 iterations)", "median env steps/s: 1000"]
+    assert summary[2] == "learning rate: not logged by this run (an older version)"
+    assert summary[-1] == "explained variance: not logged by this run (an older version)"
+    foreign = tmp_path / "foreign.csv"
+    foreign.write_text("a,b\n1,2\n")
+    result = subprocess.run([sys.executable, "tools/run_summary.py", str(foreign)], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode != 0 and "not a vitac metrics CSV" in result.stderr
+
+
 def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_others():
     pooled = _tool("outcomes").pooled
     setting = dict(ckpt="run/last.ckpt", randomization_scale=1.0, socket_obs_noise=0.005, randomize_only=None,

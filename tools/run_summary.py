@@ -25,16 +25,21 @@ def main():
     parser.add_argument("--window", type=float, default=1e6, help="env steps per training-success mean")
     args = parser.parse_args()
     rows = read_segments(args.metrics)[0]
-    steps = [s for s, _ in column(rows, "charts/env_steps")]
-    lr = [v for _, v in column(rows, "charts/lr")]
-    entropy = [v for _, v in column(rows, "losses/entropy")]
-    success = column(rows, "charts/success_rate")
-    evals = [v for _, v in column(rows, "eval/success_rate")]
-    print(f"env steps: {steps[0]:,.0f} -> {steps[-1]:,.0f} ({len(column(rows, 'losses/loss'))} iterations)")
-    print(f"median env steps/s: {statistics.median(v for _, v in column(rows, 'charts/SPS')):.0f}")
-    p10, p50, p90 = np.percentile(lr, [10, 50, 90])
-    print(f"learning rate: median {p50:.2g} (10th-90th percentile {p10:.2g} to {p90:.2g})")
-    print(f"median approx KL: {statistics.median(v for _, v in column(rows, 'losses/approx_kl')):.3f}")
+    values = lambda key: [v for _, v in column(rows, key)]  # noqa: E731
+    steps, lr, entropy = values("charts/env_steps"), values("charts/lr"), values("losses/entropy")
+    success, evals = column(rows, "charts/success_rate"), values("eval/success_rate")
+    explained = values("losses/explained_variance")
+    if not steps:
+        raise SystemExit(f"{[str(m) for m in args.metrics]}: no charts/env_steps column: not a vitac metrics CSV")
+    missing = "not logged by this run (an older version)"
+    print(f"env steps: {steps[0]:,.0f} -> {steps[-1]:,.0f} ({len(values('losses/loss'))} iterations)")
+    print(f"median env steps/s: {statistics.median(values('charts/SPS')):.0f}")
+    if lr:
+        p10, p50, p90 = np.percentile(lr, [10, 50, 90])
+        print(f"learning rate: median {p50:.2g} (10th-90th percentile {p10:.2g} to {p90:.2g})")
+    else:
+        print(f"learning rate: {missing}")
+    print(f"median approx KL: {statistics.median(values('losses/approx_kl')):.3f}")
     print(f"entropy: {entropy[0]:.2f} -> {entropy[-1]:.2f}")
     start = success[0][0]
     windows: dict[int, list] = {}
@@ -45,9 +50,9 @@ def main():
           f"{100 * statistics.mean(v for _, v in success):.0f}%")
     if evals:
         print(f"held-out evaluations: {len(evals)}, {100 * min(evals):.1f}-{100 * max(evals):.1f}%")
-    print(f"learning rate range: {min(lr):.2g} to {max(lr):.2g}")
-    explained = [v for _, v in column(rows, "losses/explained_variance")]
-    print(f"explained variance: first {explained[0]:.2f}, median {statistics.median(explained):.2f}")
+    print(f"learning rate range: {min(lr):.2g} to {max(lr):.2g}" if lr else f"learning rate range: {missing}")
+    print(f"explained variance: first {explained[0]:.2f}, median {statistics.median(explained):.2f}" if explained
+          else f"explained variance: {missing}")
 
 
 if __name__ == "__main__":
