@@ -273,6 +273,24 @@ def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis()
         InsertionConfig.from_dict({"lateral_reward_scale": -1.0})
 
 
+def test_keypoint_reward_is_tacsls_formula_and_stays_finite_when_the_peg_is_far_away():
+    import mujoco
+
+    e = InsertionEnv({"observations": ["proprio"], "success_reward_scale": 0.0}, seed=0)
+    e.reset(seed=5)
+    task, physics = e.task, e.physics
+    m, d = physics.model.ptr, physics.data.ptr
+    adr = task._ids["peg_qpos"]
+    for height in (0.03, 0.2, 50.0):  # above the hole (no x10 penalty); 50 m: exp(50 d) overflows a float
+        d.qpos[adr:adr + 3] = task.socket_pos(physics) + (0.0, 0.0, height)
+        mujoco.mj_forward(m, d)
+        distance = task.keypoint_distance(physics)
+        with np.errstate(over="ignore"):
+            expected = 0.1 * (-distance + 1.0 / (np.exp(-50.0 * distance) + 0.0001 + np.exp(50.0 * distance)))
+        assert task.get_reward(physics) == pytest.approx(expected, rel=1e-9) and np.isfinite(task.get_reward(physics))
+    e.close()
+
+
 def test_randomizing_one_factor_only_varies_that_factor_between_episodes():
     only = Randomization().only(["ee_pos"])
     assert only.ee_pos_low == [0.4, -0.1, 0.1] and only.socket_pos_low == only.socket_pos_high == [0.5, 0.0, 0.01]

@@ -311,7 +311,10 @@ class InsertionTask(composer.Task):
         centred = offset < self.peg_geometry.half_x
         if cfg.use_shaped_keypoint_reward and not centred and height < props.HOLE_DEPTH:  # beside the hole, below its top
             kp *= 10.0
-        kp_exp = 1.0 / (math.exp(-50.0 * distance) + 0.0001 + math.exp(50.0 * distance))
+        # TacSL's 1 / (exp(-50 d) + 1e-4 + exp(50 d)), multiplied through by exp(-50 d) <= 1 (d >= 0): the same
+        # value without overflowing when the peg ends far away (a knocked-off or diverged peg).
+        decay = math.exp(-50.0 * distance)
+        kp_exp = decay / (decay * decay + 0.0001 * decay + 1.0)
         reward = cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
         reward += cfg.success_reward_scale * float(self.is_success(physics))
         return reward - cfg.lateral_reward_scale * offset
