@@ -77,9 +77,8 @@ def axis_angle_matrix(rotvec: np.ndarray) -> np.ndarray:
 
 @numba.njit(cache=True)
 def hand_target(hand_qpos: np.ndarray, action: np.ndarray, pos_scale: float, rot_scale: float) -> np.ndarray:
-    """The six hand joints' targets for an action in [-1, 1]^6 (clipped): the current pose plus a position delta
-    and an axis-angle delta in the world frame applied to the current orientation (TacSL)."""
-    action = np.minimum(np.maximum(action, -1.0), 1.0)
+    """The six hand joints' targets for an action in [-1, 1]^6: the current pose plus a position delta and an
+    axis-angle delta in the world frame applied to the current orientation (TacSL)."""
     target = np.empty(6)
     target[:3] = hand_qpos[:3] + action[:3] * pos_scale
     # The hinges' angles give the orientation relative to _DOWN = diag(1, -1, -1), in which the world-frame
@@ -283,11 +282,10 @@ class InsertionTask(composer.Task):
             self._f_ref[:] = self.raw_tactiles(physics)
 
     def before_step(self, physics, action, random_state):
-        action = np.asarray(action, float)
+        action = np.clip(np.asarray(action, float), -1.0, 1.0)
         target = hand_target(physics.data.qpos[self._ids["hand_qpos"]], action, self.config.pos_action_scale,
                              self.config.rot_action_scale)
         physics.data.ctrl[self._ids["hand_act"]] = target
-        action = np.clip(action, -1.0, 1.0)
         change = action - self._prev_action
         self._action_delta = math.sqrt(change @ change)
         self._prev_action = action
@@ -338,7 +336,7 @@ class InsertionTask(composer.Task):
 
     def _keypoint_distance(self, physics) -> float:
         d, peg = physics.data, self._ids["peg_body"]
-        return mean_keypoint_distance(d.xpos[peg], d.xmat[peg], d.mocap_pos[self._ids["socket_mocap"]], self._keypoints)
+        return mean_keypoint_distance(d.xpos[peg], d.xmat[peg], self.socket_pos(physics), self._keypoints)
 
     def is_success(self, physics) -> bool:
         return self.keypoint_distance(physics) < self.config.success_threshold
@@ -346,7 +344,7 @@ class InsertionTask(composer.Task):
     def peg_offset(self, physics) -> tuple[float, float]:
         """The peg's bottom-face centre relative to the goal: horizontal distance from the hole axis and height
         above the hole floor (m)."""
-        delta = physics.data.xpos[self._ids["peg_body"]] - physics.data.mocap_pos[self._ids["socket_mocap"]]
+        delta = physics.data.xpos[self._ids["peg_body"]] - self.socket_pos(physics)
         return math.hypot(delta[0], delta[1]), float(delta[2])
 
     def outcome(self, physics) -> dict:
