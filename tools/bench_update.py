@@ -8,7 +8,9 @@ sequences, with the conv encoders in float32 and under bfloat16 autocast, and co
 multiply-accumulates from the encoder shapes. From these: the arithmetic rate the machine sustains, and
 the most env steps/s training could reach at `--mini-epochs` if it did nothing but the update (each
 transition goes through the encoders forward and backward once per mini-epoch), before a single
-environment step is simulated or a rollout action is computed.
+environment step is simulated or a rollout action is computed. A large dense matrix product in the
+same precision and threads gives the machine's practical ceiling: the env steps/s the update alone
+would allow if every convolution ran at that rate, against the rate `--target` env steps/s would need.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys
 import time
 from pathlib import Path
 
@@ -53,6 +56,17 @@ def time_minibatch(policy, optimizer, obs, starts, repeats: int) -> float:
     return (time.perf_counter() - start) / repeats
 
 
+def matmul_gflops(dtype: torch.dtype, size: int = 2048, repeats: int = 10) -> float:
+    """Rate of a large dense matrix product: what the threads do at best, a ceiling for any conv kernel."""
+    a, b = torch.randn(size, size, dtype=dtype), torch.randn(size, size, dtype=dtype)
+    for _ in range(3):
+        a @ b
+    start = time.perf_counter()
+    for _ in range(repeats):
+        a @ b
+    return 2 * size ** 3 * repeats / (time.perf_counter() - start) / 1e9
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--minibatch", type=int, default=256)
@@ -60,6 +74,7 @@ def main():
     parser.add_argument("--mini-epochs", type=int, default=4)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--target", type=float, default=300.0, help="env steps/s to compare the ceiling with")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--profile", action="store_true", help="print torch.profiler's top ops of the bfloat16 minibatch")
     args = parser.parse_args()
@@ -85,17 +100,22 @@ def main():
             policy.encoders[k].bf16 = bf16
         seconds = time_minibatch(policy, optimizer, obs, starts, args.repeats)
         gflops = args.minibatch * flop_per_transition / seconds / 1e9
+        matmul = matmul_gflops(torch.bfloat16 if bf16 else torch.float32)
         rows.append(dict(precision="bfloat16" if bf16 else "float32", minibatch_ms=1000 * seconds,
                          samples_per_s=args.minibatch / seconds, conv_gflop_per_s=gflops,
-                         update_only_env_steps_per_s=args.minibatch / seconds / args.mini_epochs))
+                         update_only_env_steps_per_s=args.minibatch / seconds / args.mini_epochs,
+                         matmul_gflop_per_s=matmul, update_only_env_steps_per_s_at_matmul_rate=matmul * 1e9 / flop_per_env_step))
     print(f"conv MACs per transition: wrist {wrist / 1e6:.1f} M, each tactile map {tactile / 1e6:.2f} M; "
           f"{flop_per_env_step / 1e9:.2f} GFLOP of update per env step at {args.mini_epochs} mini-epochs")
-    print(f"| encoders | minibatch of {args.minibatch} (ms) | samples/s fwd+bwd | conv GFLOP/s | env steps/s, update only |\n"
-          "|---|---|---|---|---|")
+    print(f"| encoders | minibatch of {args.minibatch} (ms) | samples/s fwd+bwd | conv GFLOP/s | env steps/s, update only "
+          "| matmul GFLOP/s (ceiling) | env steps/s, update only, at the ceiling |\n|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['precision']} | {r['minibatch_ms']:.0f} | {r['samples_per_s']:.0f} | {r['conv_gflop_per_s']:.0f} | "
-              f"{r['update_only_env_steps_per_s']:.0f} |")
+              f"{r['update_only_env_steps_per_s']:.0f} | {r['matmul_gflop_per_s']:.0f} | "
+              f"{r['update_only_env_steps_per_s_at_matmul_rate']:.0f} |")
     print(f"bfloat16 vs float32: {rows[0]['minibatch_ms'] / rows[1]['minibatch_ms']:.2f}x")
+    needed = args.target * flop_per_env_step / 1e9
+    print(f"{args.target:.0f} env steps/s would need {needed:.0f} GFLOP/s for the update alone, before any rollout")
     if args.profile:  # the encoders are still in bfloat16 from the last row
         with torch.profiler.profile() as prof:
             time_minibatch(policy, optimizer, obs, starts, repeats=1)
@@ -103,9 +123,10 @@ def main():
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(dict(
-            command="python tools/bench_update.py", machine=platform.processor() or platform.machine(),
+            command=" ".join(["python tools/bench_update.py", *sys.argv[1:]]), machine=platform.processor() or platform.machine(),
             threads=args.threads, minibatch=args.minibatch, seq_len=args.seq_len, mini_epochs=args.mini_epochs,
-            wrist_conv_macs=wrist, tactile_conv_macs=tactile, flop_per_env_step=flop_per_env_step, rows=rows),
+            wrist_conv_macs=wrist, tactile_conv_macs=tactile, flop_per_env_step=flop_per_env_step,
+            target_env_steps_per_s=args.target, gflop_per_s_needed_for_target=needed, rows=rows),
             indent=2) + "\n")
 
 
