@@ -11,11 +11,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from tests.conftest import CONF, compose_config
 from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.envs.gym_env import InsertionEnv
 from vitac.evaluate import evaluate, load_policy
 from vitac.models.normalizer import RunningNormalizer
 from vitac.train import build_policy_from_config, env_settings, load_weights, train
@@ -195,6 +197,29 @@ def _tool(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def test_bench_physics_meter_counts_every_substep_and_restores_the_classes_it_patches():
+    from dm_control.mujoco import engine
+
+    from vitac.envs.insertion import InsertionTask
+
+    bench = _tool("bench_physics")
+    original_step, original_forces = engine.Physics.step, InsertionTask._contact_forces
+    env = InsertionEnv({"observations": bench.OBSERVATIONS}, seed=0)
+    env.reset(seed=0)
+    meter = bench.PhysicsMeter()
+    try:
+        for _ in range(3):
+            env.step(np.zeros(6))
+    finally:
+        meter.close()
+        env.close()
+    totals = meter.totals
+    assert totals["calls"] == 3 and totals["substeps"] == 3 * env.task.physics_steps_per_control_step
+    assert totals["contact_force_calls"] == 3  # the critic state reads the contact forces once per step
+    assert totals["collision"] > 0 and totals["constraint_solve"] > 0 and totals["contacts"] > 0
+    assert engine.Physics.step is original_step and InsertionTask._contact_forces is original_forces
 
 
 def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_resumed_one_where_it_is(tmp_path):

@@ -1,0 +1,160 @@
+"""Where MuJoCo's time goes, by what the peg is doing: MuJoCo's own timers per substep, one environment.
+
+    python tools/bench_physics.py [--episodes 8] [--ckpt <run>/checkpoints/last.ckpt] [--json docs/data/bench_physics.json]
+
+Drives one environment with the privileged observations and the critic state (what `obs=privileged`
+trains on) three ways: uniform random actions (the peg mostly in the air, like an untrained policy), the
+scripted oracle (the peg aligned, pushed into the hole and held there, like a trained policy), and, given
+`--ckpt`, that checkpoint's policy with sampled actions (as in training). For each: control steps/s in
+this one process; physics per control step; per substep, the wall time of MuJoCo and its timers for
+collision (narrow phase apart) and the constraint solve; contacts, constraint rows and solver iterations
+(read after each control step's substeps); and the constraint solve that the contact-force observation
+adds once per control step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import torch
+from dm_control.mujoco import engine
+
+from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco renders
+from vitac.envs.insertion import InsertionTask
+from vitac.envs.oracle import OracleController
+
+OBSERVATIONS = ["proprio", "peg_state", "critic_state"]
+TIMERS = {"collision": mujoco.mjtTimer.mjTIMER_POS_COLLISION, "narrow_phase": mujoco.mjtTimer.mjTIMER_COL_NARROW,
+          "constraint_solve": mujoco.mjtTimer.mjTIMER_CONSTRAINT}
+
+
+class PhysicsMeter:
+    """Sums, over every physics.step call, wall time, MuJoCo's timers, contacts and constraint rows, and
+    the contact-force observation's extra solve; patches the classes, so `close` must undo it."""
+
+    def __init__(self):
+        self.totals = dict(wall=0.0, substeps=0, calls=0, contacts=0, rows=0, solver_iterations=0, contact_force_solve=0.0,
+                           contact_force_calls=0, **{k: 0.0 for k in TIMERS})
+        self._step, self._forces = engine.Physics.step, InsertionTask._contact_forces
+        meter = self
+
+        def step(physics, nstep=1):
+            data = physics.data.ptr
+            for timer in TIMERS.values():  # the timers also run outside steps: count only what happens here
+                data.timer[timer].duration = 0.0
+            start = time.perf_counter()
+            meter._step(physics, nstep)
+            meter.totals["wall"] += time.perf_counter() - start
+            meter.totals["substeps"] += nstep
+            meter.totals["calls"] += 1
+            meter.totals["contacts"] += data.ncon
+            meter.totals["rows"] += data.nefc
+            meter.totals["solver_iterations"] += data.solver_niter[0]
+            for key, timer in TIMERS.items():
+                meter.totals[key] += data.timer[timer].duration
+
+        def contact_forces(task, physics):
+            start = time.perf_counter()
+            try:
+                return meter._forces(task, physics)
+            finally:
+                meter.totals["contact_force_solve"] += time.perf_counter() - start
+                meter.totals["contact_force_calls"] += 1
+
+        engine.Physics.step, InsertionTask._contact_forces = step, contact_forces
+
+    def close(self):
+        engine.Physics.step, InsertionTask._contact_forces = self._step, self._forces
+
+    def report(self, control_steps: int, seconds: float) -> dict:
+        t = self.totals
+        per_substep = {f"{k}_us": 1e6 * t[k] / t["substeps"] for k in TIMERS}
+        return dict(control_steps=control_steps, control_steps_per_s=control_steps / seconds,
+                    physics_ms_per_control_step=1e3 * t["wall"] / t["calls"],
+                    physics_share=t["wall"] / seconds, substep_us=1e6 * t["wall"] / t["substeps"], **per_substep,
+                    contacts_per_substep=t["contacts"] / t["calls"], constraint_rows_per_substep=t["rows"] / t["calls"],
+                    solver_iterations_per_substep=t["solver_iterations"] / t["calls"],
+                    contact_force_solve_us_per_control_step=1e6 * t["contact_force_solve"] / max(t["contact_force_calls"], 1))
+
+
+def drive_scripted(driver: str, episodes: int, seed: int) -> dict:
+    env = InsertionEnv({"observations": OBSERVATIONS}, seed=seed)
+    rng = np.random.default_rng(seed)
+    env.run_oracle_episode(seed=seed - 1)  # warm-up: numba compiles, MuJoCo allocates
+    meter, steps, successes = PhysicsMeter(), 0, 0
+    start = time.perf_counter()
+    try:
+        for episode in range(episodes):
+            env.reset(seed=seed + episode)
+            oracle = OracleController(env.task)
+            done = False
+            while not done:
+                action = oracle(env.physics) if driver == "oracle" else rng.uniform(-1, 1, 6)
+                _, _, terminated, truncated, info = env.step(action)
+                steps += 1
+                done = terminated or truncated
+            successes += bool(info["success"])
+        seconds = time.perf_counter() - start
+    finally:
+        meter.close()
+        env.close()
+    return dict(driver=driver, episodes=episodes, successes=successes, **meter.report(steps, seconds))
+
+
+def drive_checkpoint(ckpt: str, episodes: int, seed: int) -> dict:
+    from vitac.envs.vector_env import InsertionVectorEnv
+    from vitac.evaluate import load_policy
+    from vitac.rl.evaluation import run_episodes
+
+    policy, _, settings = load_policy(ckpt)
+    torch.set_num_threads(1)
+    envs = InsertionVectorEnv(settings, num_envs=1, num_workers=0, seed=seed, step_in_main=True)
+    try:
+        run_episodes(policy, envs, 1, seed - 1, deterministic=False)  # warm-up
+        meter = PhysicsMeter()
+        start = time.perf_counter()
+        try:
+            summary = run_episodes(policy, envs, episodes, seed, deterministic=False)
+            seconds = time.perf_counter() - start
+        finally:
+            meter.close()
+    finally:
+        envs.close()
+    steps = meter.totals["calls"]
+    return dict(driver="checkpoint, sampled actions", ckpt=ckpt, episodes=episodes,
+                successes=round(summary["success_rate"] * episodes), **meter.report(steps, seconds))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--episodes", type=int, default=8)
+    parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--ckpt", default=None, help="also drive with this checkpoint's policy")
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+    rows = [drive_scripted("random", args.episodes, args.seed), drive_scripted("oracle", args.episodes, args.seed)]
+    if args.ckpt:
+        rows.append(drive_checkpoint(args.ckpt, args.episodes, args.seed))
+    print("| driver | successes | control steps/s | physics ms / control step (share) | us / substep | collision "
+          "(narrow phase) us | constraint solve us (solver iterations) | contacts | constraint rows | contact-force solve us / control step |\n"
+          "|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['driver']} | {r['successes']}/{r['episodes']} | {r['control_steps_per_s']:.0f} | "
+              f"{r['physics_ms_per_control_step']:.3f} ({100 * r['physics_share']:.0f}%) | {r['substep_us']:.1f} | "
+              f"{r['collision_us']:.1f} ({r['narrow_phase_us']:.1f}) | {r['constraint_solve_us']:.1f} ({r['solver_iterations_per_substep']:.1f}) | "
+              f"{r['contacts_per_substep']:.1f} | {r['constraint_rows_per_substep']:.1f} | "
+              f"{r['contact_force_solve_us_per_control_step']:.1f} |")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        command = " ".join(["python tools/bench_physics.py", *sys.argv[1:]])
+        args.json.write_text(json.dumps(dict(rows=rows, command=command), indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
