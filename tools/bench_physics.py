@@ -92,10 +92,10 @@ def drive_scripted(driver: str, episodes: int, seed: int) -> dict:
     try:
         for episode in range(episodes):
             env.reset(seed=seed + episode)
-            oracle = OracleController(env.task)
+            oracle = OracleController(env.task) if driver == "oracle" else None
             done = False
             while not done:
-                action = oracle(env.physics) if driver == "oracle" else rng.uniform(-1, 1, 6)
+                action = oracle(env.physics) if oracle else rng.uniform(-1, 1, 6)
                 _, _, terminated, truncated, info = env.step(action)
                 steps += 1
                 done = terminated or truncated
