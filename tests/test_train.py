@@ -222,6 +222,25 @@ def test_bench_physics_meter_counts_every_substep_and_restores_the_classes_it_pa
     assert engine.Physics.step is original_step and InsertionTask._contact_forces is original_forces
 
 
+def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
+    import mujoco
+
+    bench = _tool("bench_physics")
+    env = InsertionEnv({"observations": bench.OBSERVATIONS}, seed=0)
+    env.reset(seed=0)
+    meter = bench.PhysicsMeter(bench.parse_options(["cone=0", "tolerance=1e-6"]), disable=("MULTICCD",))
+    try:
+        env.step(np.zeros(6))
+    finally:
+        meter.close()
+    opt = env.physics.model.opt
+    assert opt.cone == 0 and opt.tolerance == 1e-6 and opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_MULTICCD)
+    env.close()
+    for bad in ("gravity=1", "cone", "no_such_field=2"):
+        with pytest.raises(SystemExit, match="is not allowed"):
+            bench.parse_options([bad])
+
+
 def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_resumed_one_where_it_is(tmp_path):
     plot_run = _tool("plot_run")
 

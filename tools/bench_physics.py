@@ -1,6 +1,7 @@
 """Where MuJoCo's time goes, by what the peg is doing: MuJoCo's own timers per substep, one environment.
 
     python tools/bench_physics.py [--episodes 8] [--ckpt <run>/checkpoints/last.ckpt] [--json docs/data/bench_physics.json]
+    python tools/bench_physics.py --ckpt ... --opt cone=0 --disable MULTICCD   # the same under other MuJoCo options
 
 Drives one environment with the privileged observations and the critic state (what `obs=privileged`
 trains on) three ways: uniform random actions (the peg mostly in the air, like an untrained policy), the
@@ -9,7 +10,9 @@ scripted oracle (the peg aligned, pushed into the hole and held there, like a tr
 this one process; physics per control step; per substep, the wall time of MuJoCo and its timers for
 collision (narrow phase apart) and the constraint solve; contacts, constraint rows and solver iterations
 (read after each control step's substeps); and the constraint solve that the contact-force observation
-adds once per control step.
+adds once per control step. `--opt NAME=VALUE` (a field of MuJoCo's mjOption) and `--disable FLAG` (an
+mjtDisableBit without its mjDSBL_ prefix) time the same drivers under other solver or collision settings;
+they change the task's physics, so the successes column says whether the policy still copes.
 """
 
 from __future__ import annotations
@@ -38,14 +41,18 @@ class PhysicsMeter:
     """Sums, over every physics.step call, wall time, MuJoCo's timers, contacts and constraint rows, and
     the contact-force observation's extra solve; patches the classes, so `close` must undo it."""
 
-    def __init__(self):
+    def __init__(self, options: dict | None = None, disable: tuple = ()):
         self.totals = dict(wall=0.0, substeps=0, calls=0, contacts=0, rows=0, solver_iterations=0, contact_force_solve=0.0,
                            contact_force_calls=0, **{k: 0.0 for k in TIMERS})
         self._step, self._forces = engine.Physics.step, InsertionTask._contact_forces
         meter = self
 
         def step(physics, nstep=1):
-            data = physics.data.ptr
+            data, opt = physics.data.ptr, physics.model.ptr.opt
+            for name, value in (options or {}).items():  # every call: composer may rebuild the model
+                setattr(opt, name, type(getattr(opt, name))(value))
+            for flag in disable:
+                opt.disableflags |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}"))
             for timer in TIMERS.values():  # the timers also run outside steps: count only what happens here
                 data.timer[timer].duration = 0.0
             start = time.perf_counter()
@@ -83,11 +90,11 @@ class PhysicsMeter:
                     contact_force_solve_us_per_control_step=1e6 * t["contact_force_solve"] / max(t["contact_force_calls"], 1))
 
 
-def drive_scripted(driver: str, episodes: int, seed: int) -> dict:
+def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable: tuple) -> dict:
     env = InsertionEnv({"observations": OBSERVATIONS}, seed=seed)
     rng = np.random.default_rng(seed)
     env.run_oracle_episode(seed=seed - 1)  # warm-up: numba compiles, MuJoCo allocates
-    meter, steps, successes = PhysicsMeter(), 0, 0
+    meter, steps, successes = PhysicsMeter(options, disable), 0, 0
     start = time.perf_counter()
     try:
         for episode in range(episodes):
@@ -107,7 +114,7 @@ def drive_scripted(driver: str, episodes: int, seed: int) -> dict:
     return dict(driver=driver, episodes=episodes, successes=successes, **meter.report(steps, seconds))
 
 
-def drive_checkpoint(ckpt: str, episodes: int, seed: int) -> dict:
+def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable: tuple) -> dict:
     from vitac.envs.vector_env import InsertionVectorEnv
     from vitac.evaluate import load_policy
     from vitac.rl.evaluation import run_episodes
@@ -117,7 +124,7 @@ def drive_checkpoint(ckpt: str, episodes: int, seed: int) -> dict:
     envs = InsertionVectorEnv(settings, num_envs=1, num_workers=0, seed=seed, step_in_main=True)
     try:
         run_episodes(policy, envs, 1, seed - 1, deterministic=False)  # warm-up
-        meter = PhysicsMeter()
+        meter = PhysicsMeter(options, disable)
         start = time.perf_counter()
         try:
             summary = run_episodes(policy, envs, episodes, seed, deterministic=False)
@@ -131,16 +138,38 @@ def drive_checkpoint(ckpt: str, episodes: int, seed: int) -> dict:
                 successes=round(summary["success_rate"] * episodes), **meter.report(steps, seconds))
 
 
+def parse_options(pairs: list[str]) -> dict:
+    """NAME=VALUE pairs naming numeric fields of MuJoCo's mjOption, refused before any simulation otherwise."""
+    default = mujoco.MjOption()
+    fields = {name for name in dir(default) if isinstance(getattr(default, name), (int, float))}
+    options = {}
+    for pair in pairs:
+        name, _, value = pair.partition("=")
+        if name not in fields or not value:
+            raise SystemExit(f"--opt {pair!r} is not allowed: expected NAME=VALUE with NAME a "
+                             f"numeric field of mjOption: {sorted(fields)}")
+        options[name] = float(value)
+    return options
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--ckpt", default=None, help="also drive with this checkpoint's policy")
+    parser.add_argument("--opt", action="append", default=[], metavar="NAME=VALUE", help="set a field of mjOption")
+    parser.add_argument("--disable", action="append", default=[], metavar="FLAG", help="set mjDSBL_FLAG")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    rows = [drive_scripted("random", args.episodes, args.seed), drive_scripted("oracle", args.episodes, args.seed)]
+    options = parse_options(args.opt)
+    disable = tuple(args.disable)
+    for flag in disable:
+        if not hasattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}"):
+            parser.error(f"--disable {flag} is not allowed: expected one of "
+                         f"{[n[len('mjDSBL_'):] for n in dir(mujoco.mjtDisableBit) if n.startswith('mjDSBL_')]}")
+    rows = [drive_scripted(d, args.episodes, args.seed, options, disable) for d in ("random", "oracle")]
     if args.ckpt:
-        rows.append(drive_checkpoint(args.ckpt, args.episodes, args.seed))
+        rows.append(drive_checkpoint(args.ckpt, args.episodes, args.seed, options, disable))
     print("| driver | successes | control steps/s | physics ms / control step (share) | us / substep | collision "
           "(narrow phase) us | constraint solve us (solver iterations) | contacts | constraint rows | contact-force solve us / control step |\n"
           "|---|---|---|---|---|---|---|---|---|---|")
@@ -153,7 +182,8 @@ def main():
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         command = " ".join(["python tools/bench_physics.py", *sys.argv[1:]])
-        args.json.write_text(json.dumps(dict(rows=rows, command=command), indent=2) + "\n")
+        args.json.write_text(json.dumps(dict(rows=rows, command=command, options=options, disable=list(disable)),
+                                        indent=2) + "\n")
 
 
 if __name__ == "__main__":
