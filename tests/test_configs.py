@@ -147,6 +147,13 @@ def test_shaped_privileged_experiment_extends_the_privileged_one():
     assert (shaped.head.log_std_mode, shaped.env.lateral_reward_scale, shaped.env.success_reward_scale) == ("param", 0.5, 0.1)
 
 
+def test_32env_privileged_experiment_is_the_shaped_one_with_the_overrides_its_documented_run_used():
+    run_overrides = ["algo.lr_schedule=adaptive", "algo.kl_threshold=0.008", "algo.num_envs=32", "algo.horizon=256",
+                     "algo.minibatch_size=2048", "algo.iterations=4000"]
+    as_run = compose_config(["experiment=results_privileged_cpu_shaped", *run_overrides])
+    assert compose_config(["experiment=results_privileged_cpu_32envs"]) == as_run
+
+
 def test_shaped_cmt_experiment_trains_on_the_reward_of_the_privileged_run_its_critic_comes_from():
     privileged, cmt = (compose_config([f"experiment={name}"])
                        for name in ("results_privileged_cpu_shaped", "results_cmt_sym_cpu_shaped"))
