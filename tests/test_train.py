@@ -22,6 +22,7 @@ from vitac.evaluate import evaluate, load_policy
 from vitac.models.normalizer import RunningNormalizer
 from vitac.train import build_policy_from_config, env_settings, load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.records import write_record
 
 ROOT = Path(CONF).parent
 SMOKE = ["preset=smoke", "obs=wrist_tactile", "fusion=cmt", "reg=sym"]
@@ -197,6 +198,14 @@ def _tool(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def test_benchmark_records_carry_the_command_that_reproduces_them(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["/somewhere/tools/bench_train.py", "--only", "privileged", "algo.lr=1e-5"])
+    write_record(tmp_path / "new" / "record.json", rows=[{"env_steps_per_s": 1.0}], threads=2)
+    assert json.loads((tmp_path / "new" / "record.json").read_text()) == {
+        "rows": [{"env_steps_per_s": 1.0}], "threads": 2,
+        "command": "python tools/bench_train.py --only privileged algo.lr=1e-5"}
 
 
 def test_bench_physics_meter_counts_every_substep_and_restores_the_classes_it_patches():

@@ -11,8 +11,6 @@ rate is also given in pad-frames/s.
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
 from pathlib import Path
 
@@ -20,6 +18,7 @@ import numpy as np
 
 from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco loads
 from vitac.envs.vector_env import InsertionVectorEnv
+from vitac.utils.records import write_record
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
 
@@ -106,9 +105,7 @@ def main():
         r["speedup_vs_one_worker"] = r["steps_per_s"] / one_worker[r["num_envs"]]
         print(f"| {r['num_envs']} | {r['workers']} | {r['steps_per_s']:.0f} | {r['speedup_vs_one_worker']:.2f}x |")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        command = " ".join(["python tools/bench_env.py", *sys.argv[1:]])
-        args.json.write_text(json.dumps(dict(single=single, vectorised=rows, command=command), indent=2) + "\n")
+        write_record(args.json, single=single, vectorised=rows)
 
 
 if __name__ == "__main__":

@@ -11,13 +11,13 @@ and checks that after the same steps they hold the same weights.
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
 from pathlib import Path
 
 import torch
 from bench_policy import policy_from_overrides  # tools/ is the script's directory
+
+from vitac.utils.records import write_record
 
 POLICIES = {"privileged": ["obs=privileged"], "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"]}
 
@@ -71,10 +71,7 @@ def main():
         print(f"| {r['policy']} | {r['parameters']:,} | {r['default_ms']:.2f} | {r['fused_ms']:.2f} | "
               f"{r['speedup']:.2f}x | {r['max_weight_difference']:.1e} |")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(dict(rows=rows, threads=args.threads, steps=args.steps,
-                                             command=" ".join(["python tools/bench_optimizer.py", *sys.argv[1:]])),
-                                        indent=2) + "\n")
+        write_record(args.json, rows=rows, threads=args.threads, steps=args.steps)
 
 
 if __name__ == "__main__":

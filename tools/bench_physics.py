@@ -18,8 +18,6 @@ they change the task's physics, so the successes column says whether the policy 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
 from pathlib import Path
 
@@ -31,6 +29,7 @@ from dm_control.mujoco import engine
 from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco renders
 from vitac.envs.insertion import InsertionTask
 from vitac.envs.oracle import OracleController
+from vitac.utils.records import write_record
 
 OBSERVATIONS = ["proprio", "peg_state", "critic_state"]
 TIMERS = {"collision": mujoco.mjtTimer.mjTIMER_POS_COLLISION, "narrow_phase": mujoco.mjtTimer.mjTIMER_COL_NARROW,
@@ -180,10 +179,7 @@ def main():
               f"{r['contacts_per_substep']:.1f} | {r['constraint_rows_per_substep']:.1f} | "
               f"{r['contact_force_solve_us_per_control_step']:.1f} |")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        command = " ".join(["python tools/bench_physics.py", *sys.argv[1:]])
-        args.json.write_text(json.dumps(dict(rows=rows, command=command, options=options, disable=list(disable)),
-                                        indent=2) + "\n")
+        write_record(args.json, rows=rows, options=options, disable=list(disable))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,6 @@ batch-1 forward (torch.profiler on CPU, max_memory_allocated on CUDA). CUDA rows
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 import torch
 
 from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.utils.records import write_record
 
 PAPER = {"naive": (5.42, 19.24, 184.50), "gated": (5.51, 17.43, 181.49), "cmt": (6.52, 21.45, 153.37)}
 
@@ -118,10 +118,9 @@ def main():
               f"{r['memory_mb']:.2f} ({r['weights_mb']:.2f} weights + {r['peak_forward_mb']:.2f} forward) | "
               f"{r['paper_latency_ms']} / {r['paper_memory_mb']} / {r['paper_fps']} |")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
         meta = dict(threads=args.threads, passes=args.passes, torch=torch.__version__, machine=platform.machine(),
-                    processor=platform.processor(), command="python tools/bench_policy.py")
-        args.json.write_text(json.dumps(dict(meta=meta, rows=rows), indent=2) + "\n")
+                    processor=platform.processor())
+        write_record(args.json, meta=meta, rows=rows)
 
 
 if __name__ == "__main__":

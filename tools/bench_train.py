@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import statistics
-import sys
 import tempfile
 from pathlib import Path
 
@@ -23,6 +21,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
 from vitac.train import train
+from vitac.utils.records import write_record
 
 CONFIGS = {"privileged": ["obs=privileged"],
            "privileged_workers_only": ["obs=privileged", "algo.step_in_main=false"],
@@ -67,8 +66,7 @@ def main():
         print(f"| {r['config']} | {r['preset']} | {r['num_envs']} / {r['workers']} | {r['env_steps_per_s']:.0f} | "
               f"{r['rollout_env_steps_per_s']:.0f} |")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(dict(rows=rows, command=" ".join(["python tools/bench_train.py", *sys.argv[1:]])), indent=2) + "\n")
+        write_record(args.json, rows=rows)
 
 
 if __name__ == "__main__":

@@ -16,15 +16,14 @@ would allow if every convolution ran at that rate, against the rate `--target` e
 from __future__ import annotations
 
 import argparse
-import json
 import platform
-import sys
 import time
 from pathlib import Path
 
 import torch
 
 from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.utils.records import write_record
 
 FWD_BWD = 3  # backward costs about twice the forward (input and weight gradients)
 
@@ -121,13 +120,10 @@ def main():
             time_minibatch(policy, optimizer, obs, starts, repeats=1)
         print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=8))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(dict(
-            command=" ".join(["python tools/bench_update.py", *sys.argv[1:]]), machine=platform.processor() or platform.machine(),
-            threads=args.threads, minibatch=args.minibatch, seq_len=args.seq_len, mini_epochs=args.mini_epochs,
-            wrist_conv_macs=wrist, tactile_conv_macs=tactile, flop_per_env_step=flop_per_env_step,
-            target_env_steps_per_s=args.target, gflop_per_s_needed_for_target=needed, rows=rows),
-            indent=2) + "\n")
+        write_record(args.json, machine=platform.processor() or platform.machine(), threads=args.threads,
+                     minibatch=args.minibatch, seq_len=args.seq_len, mini_epochs=args.mini_epochs,
+                     wrist_conv_macs=wrist, tactile_conv_macs=tactile, flop_per_env_step=flop_per_env_step,
+                     target_env_steps_per_s=args.target, gflop_per_s_needed_for_target=needed, rows=rows)
 
 
 if __name__ == "__main__":
