@@ -237,7 +237,7 @@ def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
     bench = _tool("bench_physics")
     env = InsertionEnv({"observations": bench.OBSERVATIONS}, seed=0)
     env.reset(seed=0)
-    meter = bench.PhysicsMeter(bench.parse_options(["cone=0", "tolerance=1e-6"]), disable=("MULTICCD",))
+    meter = bench.PhysicsMeter(bench.parse_options(["cone=0", "tolerance=1e-6"]), bench.parse_disable(["MULTICCD"]))
     try:
         env.step(np.zeros(6))
     finally:
@@ -248,6 +248,8 @@ def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
     for bad in ("gravity=1", "cone", "no_such_field=2"):
         with pytest.raises(SystemExit, match="is not allowed"):
             bench.parse_options([bad])
+    with pytest.raises(SystemExit, match="is not allowed"):
+        bench.parse_disable(["NO_SUCH_FLAG"])
 
 
 def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_resumed_one_where_it_is(tmp_path):

@@ -40,7 +40,7 @@ class PhysicsMeter:
     """Sums, over every physics.step call, wall time, MuJoCo's timers, contacts and constraint rows, and
     the contact-force observation's extra solve; patches the classes, so `close` must undo it."""
 
-    def __init__(self, options: dict | None = None, disable: tuple = ()):
+    def __init__(self, options: dict | None = None, disable_mask: int = 0):
         self.totals = dict(wall=0.0, substeps=0, calls=0, contacts=0, rows=0, solver_iterations=0, contact_force_solve=0.0,
                            contact_force_calls=0, **{k: 0.0 for k in TIMERS})
         self._step, self._forces = engine.Physics.step, InsertionTask._contact_forces
@@ -49,9 +49,8 @@ class PhysicsMeter:
         def step(physics, nstep=1):
             data, opt = physics.data.ptr, physics.model.ptr.opt
             for name, value in (options or {}).items():  # every call: composer may rebuild the model
-                setattr(opt, name, type(getattr(opt, name))(value))
-            for flag in disable:
-                opt.disableflags |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}"))
+                setattr(opt, name, value)
+            opt.disableflags |= disable_mask
             for timer in TIMERS.values():  # the timers also run outside steps: count only what happens here
                 data.timer[timer].duration = 0.0
             start = time.perf_counter()
@@ -89,11 +88,11 @@ class PhysicsMeter:
                     contact_force_solve_us_per_control_step=1e6 * t["contact_force_solve"] / max(t["contact_force_calls"], 1))
 
 
-def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable: tuple) -> dict:
+def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable_mask: int) -> dict:
     env = InsertionEnv({"observations": OBSERVATIONS}, seed=seed)
     rng = np.random.default_rng(seed)
     env.run_oracle_episode(seed=seed - 1)  # warm-up: numba compiles, MuJoCo allocates
-    meter, steps, successes = PhysicsMeter(options, disable), 0, 0
+    meter, steps, successes = PhysicsMeter(options, disable_mask), 0, 0
     start = time.perf_counter()
     try:
         for episode in range(episodes):
@@ -113,7 +112,7 @@ def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable
     return dict(driver=driver, episodes=episodes, successes=successes, **meter.report(steps, seconds))
 
 
-def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable: tuple) -> dict:
+def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable_mask: int) -> dict:
     from vitac.envs.vector_env import InsertionVectorEnv
     from vitac.evaluate import load_policy
     from vitac.rl.evaluation import run_episodes
@@ -123,7 +122,7 @@ def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable
     envs = InsertionVectorEnv(settings, num_envs=1, num_workers=0, seed=seed, step_in_main=True)
     try:
         run_episodes(policy, envs, 1, seed - 1, deterministic=False)  # warm-up
-        meter = PhysicsMeter(options, disable)
+        meter = PhysicsMeter(options, disable_mask)
         start = time.perf_counter()
         try:
             summary = run_episodes(policy, envs, episodes, seed, deterministic=False)
@@ -138,7 +137,8 @@ def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable
 
 
 def parse_options(pairs: list[str]) -> dict:
-    """NAME=VALUE pairs naming numeric fields of MuJoCo's mjOption, refused before any simulation otherwise."""
+    """NAME=VALUE pairs naming numeric fields of MuJoCo's mjOption, as values of each field's type; refused
+    before any simulation otherwise."""
     default = mujoco.MjOption()
     fields = {name for name in dir(default) if isinstance(getattr(default, name), (int, float))}
     options = {}
@@ -147,8 +147,19 @@ def parse_options(pairs: list[str]) -> dict:
         if name not in fields or not value:
             raise SystemExit(f"--opt {pair!r} is not allowed: expected NAME=VALUE with NAME a "
                              f"numeric field of mjOption: {sorted(fields)}")
-        options[name] = float(value)
+        options[name] = type(getattr(default, name))(float(value))
     return options
+
+
+def parse_disable(flags: list[str]) -> int:
+    """mjtDisableBit names without their mjDSBL_ prefix, as one mask; refused before any simulation otherwise."""
+    allowed = [name.removeprefix("mjDSBL_") for name in dir(mujoco.mjtDisableBit) if name.startswith("mjDSBL_")]
+    mask = 0
+    for flag in flags:
+        if flag not in allowed:
+            raise SystemExit(f"--disable {flag!r} is not allowed: expected one of {allowed}")
+        mask |= int(getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}"))
+    return mask
 
 
 def main():
@@ -160,15 +171,10 @@ def main():
     parser.add_argument("--disable", action="append", default=[], metavar="FLAG", help="set mjDSBL_FLAG")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    options = parse_options(args.opt)
-    disable = tuple(args.disable)
-    for flag in disable:
-        if not hasattr(mujoco.mjtDisableBit, f"mjDSBL_{flag}"):
-            parser.error(f"--disable {flag} is not allowed: expected one of "
-                         f"{[n[len('mjDSBL_'):] for n in dir(mujoco.mjtDisableBit) if n.startswith('mjDSBL_')]}")
-    rows = [drive_scripted(d, args.episodes, args.seed, options, disable) for d in ("random", "oracle")]
+    options, disable_mask = parse_options(args.opt), parse_disable(args.disable)
+    rows = [drive_scripted(d, args.episodes, args.seed, options, disable_mask) for d in ("random", "oracle")]
     if args.ckpt:
-        rows.append(drive_checkpoint(args.ckpt, args.episodes, args.seed, options, disable))
+        rows.append(drive_checkpoint(args.ckpt, args.episodes, args.seed, options, disable_mask))
     print("| driver | successes | control steps/s | physics ms / control step (share) | us / substep | collision "
           "(narrow phase) us | constraint solve us (solver iterations) | contacts | constraint rows | contact-force solve us / control step |\n"
           "|---|---|---|---|---|---|---|---|---|---|")
@@ -179,7 +185,7 @@ def main():
               f"{r['contacts_per_substep']:.1f} | {r['constraint_rows_per_substep']:.1f} | "
               f"{r['contact_force_solve_us_per_control_step']:.1f} |")
     if args.json:
-        write_record(args.json, rows=rows, options=options, disable=list(disable))
+        write_record(args.json, rows=rows, options=options, disable=args.disable)
 
 
 if __name__ == "__main__":
