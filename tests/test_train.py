@@ -22,7 +22,7 @@ from vitac.evaluate import evaluate, load_policy
 from vitac.models.normalizer import RunningNormalizer
 from vitac.train import build_policy_from_config, env_settings, load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
-from vitac.utils.records import write_record
+from vitac.utils.records import write_json, write_record
 
 ROOT = Path(CONF).parent
 SMOKE = ["preset=smoke", "obs=wrist_tactile", "fusion=cmt", "reg=sym"]
@@ -208,6 +208,35 @@ def test_benchmark_records_carry_the_command_that_reproduces_them(tmp_path, monk
         "command": "python tools/bench_train.py --only privileged algo.lr=1e-5"}
 
 
+def test_a_json_record_replaces_its_file_only_once_written_whole(tmp_path, monkeypatch):
+    target = tmp_path / "last.eval.json"
+    write_json(target, {"success_rate": 0.5})
+    assert json.loads(target.read_text()) == {"success_rate": 0.5}
+
+    def crash(src, dst):  # the process dies after writing the new report, before it takes the old one's place
+        raise OSError("killed")
+
+    monkeypatch.setattr(os, "replace", crash)
+    with pytest.raises(OSError, match="killed"):
+        write_json(target, {"success_rate": 0.9, "final_peg": [{"outcome": "inserted"}] * 1000})
+    assert json.loads(target.read_text()) == {"success_rate": 0.5}  # the previous report, whole
+    assert [p.name for p in tmp_path.iterdir()] == ["last.eval.json"]  # and no temporary file left behind
+
+
+def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tmp_path):
+    run = tmp_path / "runs" / "0"
+    (run / "csv").mkdir(parents=True)
+    (run / "checkpoints").mkdir()
+    (run / "config.yaml").write_text("fusion: {_target_: vitac.models.fusion.CMTFusion}\nobs: {name: privileged}\n"
+                                     "reg: {lambda_sym: 0.0}\npreset: {name: smoke}\nseed: 0\n")
+    (run / "csv" / "metrics.csv").write_text("charts/env_steps,eval/success_rate\n1000,0.5\n")
+    (run / "checkpoints" / "last.eval.json").write_text('{"episodes": 100, "success_rate": 0.9')
+    result = subprocess.run([sys.executable, "tools/report.py", str(tmp_path / "runs"), "--out", str(tmp_path / "out")],
+                            cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode != 0 and "last.eval.json: cannot be read (JSONDecodeError" in result.stderr
+    assert not (tmp_path / "out" / "table1.md").exists()
+
+
 def test_bench_physics_meter_counts_every_substep_and_restores_the_classes_it_patches():
     from dm_control.mujoco import engine
 
@@ -287,6 +316,33 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
     foreign.write_text("a,b\n1,2\n")
     result = subprocess.run([sys.executable, "tools/run_summary.py", str(foreign)], cwd=ROOT, capture_output=True, text=True)
     assert result.returncode != 0 and "not a vitac metrics CSV" in result.stderr
+
+
+def test_plot_and_summary_tools_refuse_a_file_that_is_not_a_metrics_csv_naming_it(tmp_path):
+    read_segments = _tool("plot_run").read_segments
+    good = tmp_path / "good.csv"
+    good.write_text("charts/env_steps,charts/success_rate\n1000,0.5\n")
+    foreign, header_only, binary = tmp_path / "foreign.csv", tmp_path / "header.csv", tmp_path / "binary.csv"
+    foreign.write_text("a,b\n1,2\n")
+    header_only.write_text("charts/env_steps,charts/success_rate\n")
+    binary.write_bytes(b"\x80\x81\xfe\xff" * 64)
+    for bad, reason in ((foreign, "not a vitac metrics CSV"), (header_only, "not a vitac metrics CSV"),
+                        (binary, "cannot be read as a metrics CSV"), (tmp_path / "missing.csv", "cannot be read")):
+        with pytest.raises(SystemExit, match=f"{bad.name}: .*{reason}"):
+            read_segments([good, bad])  # the bad one named, even after a good segment
+    plot = subprocess.run([sys.executable, "tools/plot_run.py", str(foreign), "--out", str(tmp_path / "p.png")],
+                          cwd=ROOT, capture_output=True, text=True)
+    assert plot.returncode != 0 and "not a vitac metrics CSV" in plot.stderr and not (tmp_path / "p.png").exists()
+
+
+def test_outcomes_refuses_a_truncated_or_foreign_report_before_printing_anything(tmp_path):
+    truncated, foreign = tmp_path / "truncated.json", tmp_path / "foreign.json"
+    truncated.write_text('{"episodes": 100, "success_rate": 0.9')
+    foreign.write_text('{"rows": []}')
+    for bad, reason in ((truncated, "cannot be read as a vitac.evaluate report"),
+                        (foreign, "not a vitac.evaluate report")):
+        result = subprocess.run([sys.executable, "tools/outcomes.py", str(bad)], cwd=ROOT, capture_output=True, text=True)
+        assert result.returncode != 0 and f"{bad.name}: {reason}" in result.stderr and result.stdout == ""
 
 
 def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_others():

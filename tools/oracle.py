@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from vitac.envs.gym_env import InsertionEnv
 from vitac.rl.evaluation import summarize
+from vitac.utils.records import write_record
 
 
 def main():
@@ -52,8 +53,7 @@ def main():
                   seconds=time.perf_counter() - start)
     print(json.dumps(report, indent=2))
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        write_record(args.json, **report)
 
 
 if __name__ == "__main__":

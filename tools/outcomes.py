@@ -70,6 +70,19 @@ def pooled(reports: list, names: list) -> str:
             f"(95% Wilson interval {100 * low:.1f}-{100 * high:.1f}%)")
 
 
+def read_report(path: Path) -> dict:
+    """One `vitac.evaluate` report; a file that is not one is refused with its name, before any table is printed."""
+    try:
+        report = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise SystemExit(f"{path}: cannot be read as a vitac.evaluate report ({err})") from err
+    if not isinstance(report, dict) or not {"episodes", "success_rate", "seed"} <= report.keys():
+        raise SystemExit(f"{path}: not a vitac.evaluate report (no episodes, success_rate and seed)")
+    if "final_peg" not in report:
+        raise SystemExit(f"{path}: no 'final_peg' entries (written by an older vitac.evaluate); evaluate again")
+    return report
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("reports", type=Path, nargs="+")
@@ -78,12 +91,10 @@ def main():
     args = parser.parse_args()
     if args.paired and len(args.reports) != 2:
         parser.error("--paired takes exactly two reports")
+    reports = [read_report(path) for path in args.reports]
     print("| report | outcome | episodes | offset from axis, mm: median (quartiles) | height above floor, mm | tilt, deg |")
     print("|---|---|---|---|---|---|")
-    reports = [json.loads(path.read_text()) for path in args.reports]
     for path, report in zip(args.reports, reports, strict=True):
-        if "final_peg" not in report:
-            raise SystemExit(f"{path}: no 'final_peg' entries (written by an older vitac.evaluate); evaluate again")
         by_outcome: dict[str, list] = {}
         for episode in report["final_peg"]:
             by_outcome.setdefault(episode["outcome"], []).append(episode)

@@ -42,9 +42,14 @@ def read_segments(paths):
     """
     rows, resumes = [], []
     for i, path in enumerate(paths):
-        with open(path) as f:
-            segment = [r for r in csv.DictReader(f) if r.get("charts/env_steps")]
-        if i > 0 and segment:
+        try:
+            with open(path, newline="") as f:
+                segment = [r for r in csv.DictReader(f) if r.get("charts/env_steps")]
+        except (OSError, UnicodeDecodeError, csv.Error) as err:
+            raise SystemExit(f"{path}: cannot be read as a metrics CSV ({err})") from err
+        if not segment:  # a plot or summary of it would silently show nothing
+            raise SystemExit(f"{path}: no rows with charts/env_steps: not a vitac metrics CSV")
+        if i > 0:
             end = float(rows[-1]["charts/env_steps"]) if rows else 0.0
             if float(segment[0]["charts/env_steps"]) < end:
                 for r in segment:

@@ -35,13 +35,22 @@ def _float(x):
     return None if math.isnan(value) else value
 
 
+def _read(path: Path, parse):
+    """`parse` of the open file; a file it cannot read (cut short, not text) stops the report, naming the file."""
+    try:
+        with open(path, newline="") as f:
+            return parse(f)
+    except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError, csv.Error) as err:
+        raise SystemExit(f"{path}: cannot be read ({type(err).__name__}: {err}); evaluate or rerun that run again, "
+                         "or leave its directory out") from err
+
+
 def load_run(run: Path) -> dict | None:
     config_path, metrics_path = run / "config.yaml", run / "csv" / "metrics.csv"
     if not (config_path.is_file() and metrics_path.is_file()):
         return None
-    cfg = yaml.safe_load(config_path.read_text())
-    with open(metrics_path) as f:
-        rows = list(csv.DictReader(f))
+    cfg = _read(config_path, yaml.safe_load)
+    rows = _read(metrics_path, lambda f: list(csv.DictReader(f)))
     curve = [(_float(r.get("charts/env_steps")), _float(r.get("eval/success_rate")), _float(r.get("charts/reward_per_step")))
              for r in rows]
     evals = [(s, e) for s, e, _ in curve if s is not None and e is not None]
@@ -54,7 +63,7 @@ def load_run(run: Path) -> dict | None:
                   env_steps=max((s for s, _, _ in curve if s is not None), default=0))
     report = run / "checkpoints" / "last.eval.json"
     if report.is_file():
-        data = json.loads(report.read_text())
+        data = _read(report, json.load)
         result.update(success=data["success_rate"], steps_to_success=data.get("steps_to_success_mean"),
                       episodes=data["episodes"])
     else:

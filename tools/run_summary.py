@@ -29,8 +29,6 @@ def main():
     steps, lr, entropy = values("charts/env_steps"), values("charts/lr"), values("losses/entropy")
     success, evals = column(rows, "charts/success_rate"), values("eval/success_rate")
     explained = values("losses/explained_variance")
-    if not steps:
-        raise SystemExit(f"{[str(m) for m in args.metrics]}: no charts/env_steps column: not a vitac metrics CSV")
     missing = "not logged by this run (an older version)"
     print(f"env steps: {steps[0]:,.0f} -> {steps[-1]:,.0f} ({len(values('losses/loss'))} iterations)")
     print(f"median env steps/s: {statistics.median(values('charts/SPS')):.0f}")

@@ -21,6 +21,7 @@ from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.rl.evaluation import run_episodes
 from vitac.train import build_policy_from_config, env_settings
 from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.records import write_json
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,7 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
                              for e in summary["episodes_detail"]])
     only = "" if randomize_only is None else ".only-" + "-".join(randomize_only)
     target = Path(out) if out else Path(ckpt).with_suffix(f".eval{only}.json")
-    target.write_text(json.dumps(report, indent=2))
+    write_json(target, report)
     return report
 
 
