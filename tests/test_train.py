@@ -374,6 +374,37 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
         train(compose_config(SMOKE + [f"trainer.accelerator={value}"], output_dir=tmp_path / "x"))
 
 
+@pytest.mark.parametrize("override,pattern", [
+    ("algo.gamma=1.5", r"algo\.gamma=1\.5 is not allowed: expected a number in \[0, 1\]"),
+    ("algo.gae_lambda=-0.1", r"algo\.gae_lambda=-0\.1 is not allowed: expected a number in \[0, 1\]"),
+    ("algo.mini_epochs=0", r"algo\.mini_epochs=0 is not allowed: expected a positive integer"),
+    ("algo.mini_epochs=2.5", r"algo\.mini_epochs=2\.5 is not allowed: expected a positive integer"),
+    ("algo.clip=0", r"algo\.clip=0 is not allowed: expected a number > 0"),
+    ("algo.lr=-1", r"algo\.lr=-1 is not allowed: expected a number > 0"),
+    ("algo.critic_coef=-2", r"algo\.critic_coef=-2 is not allowed: expected a number >= 0"),
+    ("algo.iterations=0", r"algo\.iterations=0 is not allowed: expected a positive integer"),
+    ("algo.num_workers=3", r"algo\.num_workers=3 is not allowed: expected 0 or a divisor of algo\.num_envs=2"),
+    ("algo.normalize_input=maybe", r"algo\.normalize_input='maybe' is not allowed: expected true or false"),
+    ("algo.horizon=12", r"algo\.horizon=12 is not allowed: expected a multiple of algo\.seq_len"),
+    ("seed=abc", r"seed='abc' is not allowed: expected an integer or null"),
+])
+def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
+    monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
+    with pytest.raises(ValueError, match=pattern):
+        train(compose_config(SMOKE + [override], output_dir=tmp_path / "x"))
+    assert not (tmp_path / "x").exists()  # nor a run directory left behind
+
+
+def test_every_algo_key_has_its_check():
+    from vitac.rl import hyperparameters as h
+
+    by_components = {"lr_schedule", "kl_threshold", "lr_schedule_every", "curriculum"}  # their constructors
+    checked = (set(h.POSITIVE_INTS + h.POSITIVE_NUMBERS + h.NON_NEGATIVE_NUMBERS + h.FRACTIONS + h.FLAGS)
+               | {"num_workers", "eval_video_every"} | by_components)
+    assert set(compose_config([]).algo) == checked
+
+
 def test_evaluate_reports_success_with_interval(tmp_path):
     run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
     report = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "e.json"))

@@ -20,6 +20,7 @@ from vitac.models.build import build_policy
 from vitac.models.policy import IMAGE_ROLES, VECTOR_KEYS
 from vitac.rl.callbacks import CheckpointOnTermination, EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
+from vitac.rl.hyperparameters import check_algo, check_seed
 from vitac.rl.lr_schedule import make_lr_schedule
 from vitac.rl.ppo import PPO
 from vitac.utils.checkpoint import PortableCheckpointIO, load_checkpoint
@@ -69,14 +70,16 @@ def output_dir(cfg: DictConfig) -> Path:
 
 def train(cfg: DictConfig) -> dict:
     """Validate, seed, build env and policy, run PPO; returns the last metrics and the output paths."""
+    # Everything that can be checked without simulating is checked first.
+    check_seed(cfg.seed)
+    check_algo(OmegaConf.to_container(cfg.algo, resolve=True))
+    settings = env_settings(cfg)
+    env_config = InsertionConfig.from_dict(settings)
+    accelerator = check_accelerator(cfg.trainer.accelerator)
     out = output_dir(cfg)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.seed is not None:  # before any weights are initialised
         L.seed_everything(cfg.seed, workers=True)
-    # Everything that can be checked without simulating is checked first.
-    settings = env_settings(cfg)
-    env_config = InsertionConfig.from_dict(settings)
-    accelerator = check_accelerator(cfg.trainer.accelerator)
     policy = build_policy_from_config(cfg, env_config)
     log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
              sum(p.numel() for p in policy.parameters()))
