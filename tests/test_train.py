@@ -387,6 +387,8 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
     ("algo.normalize_input=maybe", r"algo\.normalize_input='maybe' is not allowed: expected true or false"),
     ("algo.horizon=12", r"algo\.horizon=12 is not allowed: expected a multiple of algo\.seq_len"),
     ("seed=abc", r"seed='abc' is not allowed: expected an integer or null"),
+    ("trainer.update_threads=0", r"trainer\.update_threads=0 is not allowed: expected a positive integer"),
+    ("trainer.deterministic=maybe", r"trainer\.deterministic='maybe' is not allowed: expected true or false"),
 ])
 def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
     monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
@@ -396,12 +398,25 @@ def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path,
     assert not (tmp_path / "x").exists()  # nor a run directory left behind
 
 
+@pytest.mark.parametrize("arguments,pattern", [
+    (dict(episodes=0), r"episodes=0 is not allowed: expected a positive integer"),
+    (dict(num_envs=0), r"num_envs=0 is not allowed: expected a positive integer"),
+    (dict(num_workers=3), r"num_workers=3 is not allowed: expected 0 or a divisor of num_envs=4"),
+    (dict(seed="abc"), r"seed='abc' is not allowed: expected an integer >= 0"),
+    (dict(deterministic="yes"), r"deterministic='yes' is not allowed: expected true or false"),
+])
+def test_bad_evaluation_arguments_are_refused_before_the_checkpoint_is_read(monkeypatch, arguments, pattern):
+    monkeypatch.setattr("vitac.evaluate.load_policy", lambda *a, **k: pytest.fail("checkpoint read"))
+    with pytest.raises(ValueError, match=pattern):
+        evaluate("run/last.ckpt", **(dict(episodes=10, num_envs=4, num_workers=2, seed=0) | arguments))
+
+
 def test_every_algo_key_has_its_check():
     from vitac.rl import hyperparameters as h
 
     by_components = {"lr_schedule", "kl_threshold", "lr_schedule_every", "curriculum"}  # their constructors
     checked = (set(h.POSITIVE_INTS + h.POSITIVE_NUMBERS + h.NON_NEGATIVE_NUMBERS + h.FRACTIONS + h.FLAGS)
-               | {"num_workers", "eval_video_every"} | by_components)
+               | {"num_envs", "num_workers", "eval_video_every"} | by_components)
     assert set(compose_config([]).algo) == checked
 
 

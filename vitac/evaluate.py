@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from vitac.envs.config import InsertionConfig, Randomization
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.rl.evaluation import run_episodes
+from vitac.rl.hyperparameters import check_flag, check_groups, check_int
 from vitac.train import build_policy_from_config, env_settings
 from vitac.utils.checkpoint import load_checkpoint
 from vitac.utils.records import write_json
@@ -45,6 +46,11 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
     false; the paper's randomization unless `randomization_scale` shrinks it (e.g. to the level a
     curriculum reached) or `socket_obs_noise` replaces the socket observation noise (0: what the noise costs);
     `randomize_only` (names from RANDOMIZED_FACTORS) randomizes those factors alone, every other at its midpoint."""
+    check_int("episodes", episodes, 1)
+    check_groups(num_envs, num_workers, prefix="")
+    check_int("seed", seed, 0)
+    check_flag("deterministic", deterministic)
+    check_flag("step_in_main", step_in_main)
     policy, cfg, settings = load_policy(ckpt)
     settings = dict(settings, randomization=dict(settings["randomization"]))
     if randomization_scale is not None:
@@ -82,8 +88,6 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
 def main(cfg: DictConfig) -> None:
     if not cfg.ckpt:
         raise ValueError("ckpt=None is not allowed: pass ckpt=<run dir>/checkpoints/last.ckpt")
-    if not isinstance(cfg.deterministic, bool):
-        raise ValueError(f"deterministic={cfg.deterministic!r} is not allowed: expected true or false")
     report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
                       cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only,
                       cfg.step_in_main)

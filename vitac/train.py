@@ -20,7 +20,7 @@ from vitac.models.build import build_policy
 from vitac.models.policy import IMAGE_ROLES, VECTOR_KEYS
 from vitac.rl.callbacks import CheckpointOnTermination, EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
-from vitac.rl.hyperparameters import check_algo, check_seed
+from vitac.rl.hyperparameters import check_algo, check_seed, check_trainer_threads
 from vitac.rl.lr_schedule import make_lr_schedule
 from vitac.rl.ppo import PPO
 from vitac.utils.checkpoint import PortableCheckpointIO, load_checkpoint
@@ -76,6 +76,7 @@ def train(cfg: DictConfig) -> dict:
     settings = env_settings(cfg)
     env_config = InsertionConfig.from_dict(settings)
     accelerator = check_accelerator(cfg.trainer.accelerator)
+    check_trainer_threads(cfg.trainer.rollout_threads, cfg.trainer.update_threads, cfg.trainer.deterministic)
     out = output_dir(cfg)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.seed is not None:  # before any weights are initialised
