@@ -411,6 +411,19 @@ def test_bad_evaluation_arguments_are_refused_before_the_checkpoint_is_read(monk
         evaluate("run/last.ckpt", **(dict(episodes=10, num_envs=4, num_workers=2, seed=0) | arguments))
 
 
+def test_resume_that_cannot_continue_exactly_is_refused_before_any_environment_is_built(tmp_path, monkeypatch):
+    smoke = ["preset=smoke", "obs=privileged"]
+    train(compose_config(smoke, output_dir=tmp_path / "run"))
+    monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("environments built"))
+    with pytest.raises(ValueError, match=r"algo\.num_envs=4 is not allowed with resume=.*holds the states of 2 "
+                                         r"environments; resume with algo\.num_envs=2, or .* init_ckpt="):
+        train(compose_config(smoke + ["algo.num_envs=4", f"resume={tmp_path / 'run'}"], output_dir=tmp_path / "a"))
+    with pytest.raises(ValueError, match=r"does not fit this policy: \d+ tensors differ .*policy\.normalizers\.contact"
+                                         r".*set differently from the checkpoint's: \['obs'\]"):
+        train(compose_config(["preset=smoke", "obs=privileged_contact", f"resume={tmp_path / 'run'}"],
+                             output_dir=tmp_path / "b"))
+
+
 def test_every_algo_key_has_its_check():
     from vitac.rl import hyperparameters as h
 

@@ -62,6 +62,30 @@ def build_policy_from_config(cfg: DictConfig, env_config: InsertionConfig):
                         {k: shapes[k] for k in cfg.obs.modalities}, critic_state_dim=shapes["critic_state"][0])
 
 
+POLICY_GROUPS = ("obs", "encoder", "fusion", "head", "reg", "critic")
+
+
+def check_resume(cfg: DictConfig, policy, path: Path) -> None:
+    """An exact resume needs the checkpoint's weights to fit this policy and its environment states to fit
+    algo.num_envs: refused before any environment is built otherwise, pointing to init_ckpt (a warm start)."""
+    checkpoint = load_checkpoint(path, key="resume")
+    saved_envs = len(checkpoint["vitac"]["env_states"])
+    if saved_envs != cfg.algo.num_envs:
+        raise ValueError(f"algo.num_envs={cfg.algo.num_envs} is not allowed with resume={cfg.resume!r}: its checkpoint "
+                         f"holds the states of {saved_envs} environments; resume with algo.num_envs={saved_envs}, "
+                         f"or start a new run from its weights with init_ckpt={path}")
+    own = {f"policy.{k}": tuple(v.shape) for k, v in policy.state_dict().items()}
+    saved = {k: tuple(v.shape) for k, v in checkpoint["state_dict"].items() if k.startswith("policy.")}
+    if own != saved:
+        differ = sorted(k for k in own.keys() | saved.keys() if own.get(k) != saved.get(k))
+        current = OmegaConf.to_container(cfg, resolve=True)
+        groups = [g for g in POLICY_GROUPS if current.get(g) != checkpoint["vitac_config"].get(g)]
+        raise ValueError(f"resume={cfg.resume!r} does not fit this policy: {len(differ)} tensors differ in name or "
+                         f"shape ({differ[:3]}); config groups set differently from the checkpoint's: {groups}. "
+                         f"Resume with the checkpoint's settings, or start a new run from its weights with "
+                         f"init_ckpt={path}")
+
+
 def output_dir(cfg: DictConfig) -> Path:
     if cfg.get("output_dir"):
         return Path(cfg.output_dir)
@@ -89,6 +113,7 @@ def train(cfg: DictConfig) -> dict:
         ckpt_path = Path(cfg.resume) / "checkpoints" / "last.ckpt"
         if not ckpt_path.is_file():
             raise FileNotFoundError(f"resume={cfg.resume!r}: no checkpoint at {ckpt_path}")
+        check_resume(cfg, policy, ckpt_path)
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
     resolved = OmegaConf.to_container(cfg, resolve=True)
     algo = OmegaConf.to_container(cfg.algo, resolve=True)
