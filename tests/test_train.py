@@ -318,6 +318,18 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
     assert result.returncode != 0 and "not a vitac metrics CSV" in result.stderr
 
 
+@pytest.mark.parametrize("command,message", [
+    (["bench_train", "--iterations", "1"], "argument --iterations: 1 is not allowed: expected an integer >= 2"),
+    (["oracle", "--episodes", "0"], "argument --episodes: 0 is not allowed: expected an integer >= 1"),
+    (["bench_env", "--steps", "many"], "argument --steps: 'many' is not an integer"),
+    (["run_summary", "x.csv", "--window", "0"], "argument --window: 0.0 is not allowed: expected a number > 0"),
+])
+def test_tools_refuse_a_count_out_of_range_naming_the_flag_before_any_work(command, message):
+    result = subprocess.run([sys.executable, f"tools/{command[0]}.py", *command[1:]], cwd=ROOT, capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 2 and message in result.stderr and result.stdout == ""
+
+
 def test_plot_and_summary_tools_refuse_a_file_that_is_not_a_metrics_csv_naming_it(tmp_path):
     read_segments = _tool("plot_run").read_segments
     good = tmp_path / "good.csv"

@@ -18,6 +18,7 @@ import numpy as np
 
 from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco loads
 from vitac.envs.vector_env import InsertionVectorEnv
+from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
@@ -82,7 +83,7 @@ def vectorised(num_envs: int, workers: int, steps: int) -> float:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--steps", type=int_at_least(1), default=1000)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     single = single_env(args.steps)

@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 from bench_policy import policy_from_overrides  # tools/ is the script's directory
 
+from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 POLICIES = {"privileged": ["obs=privileged"], "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"]}
@@ -52,8 +53,8 @@ def compare(params: list, steps: int, rounds: int = 5) -> dict:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--steps", type=int, default=300)
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--steps", type=int_at_least(1), default=300)
+    parser.add_argument("--threads", type=int_at_least(1), default=2)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

@@ -29,6 +29,7 @@ from dm_control.mujoco import engine
 from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco renders
 from vitac.envs.insertion import InsertionTask
 from vitac.envs.oracle import OracleController
+from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 OBSERVATIONS = ["proprio", "peg_state", "critic_state"]
@@ -164,8 +165,8 @@ def parse_disable(flags: list[str]) -> int:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=8)
-    parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--episodes", type=int_at_least(1), default=8)
+    parser.add_argument("--seed", type=int_at_least(1), default=1000)
     parser.add_argument("--ckpt", default=None, help="also drive with this checkpoint's policy")
     parser.add_argument("--opt", action="append", default=[], metavar="NAME=VALUE", help="set a field of mjOption")
     parser.add_argument("--disable", action="append", default=[], metavar="FLAG", help="set mjDSBL_FLAG")

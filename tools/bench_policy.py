@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 
 from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 PAPER = {"naive": (5.42, 19.24, 184.50), "gated": (5.51, 17.43, 181.49), "cmt": (6.52, 21.45, 153.37)}
@@ -85,8 +86,8 @@ def memory_mb(policy, device) -> tuple[float, float]:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--passes", type=int, default=1000)
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--passes", type=int_at_least(1), default=1000)
+    parser.add_argument("--threads", type=int_at_least(1), default=2)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

@@ -21,6 +21,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
 from vitac.train import train
+from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 CONFIGS = {"privileged": ["obs=privileged"],
@@ -55,7 +56,8 @@ def run(name: str, overrides: list, iterations: int) -> dict:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--iterations", type=int, default=6)
+    parser.add_argument("--iterations", type=int_at_least(2), default=6,
+                        help="iterations per configuration; the first (start-up) is left out of the median")
     parser.add_argument("--only", nargs="+", choices=sorted(CONFIGS), default=list(CONFIGS))
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every configuration")

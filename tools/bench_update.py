@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.utils.cli import int_at_least, number_above
 from vitac.utils.records import write_record
 
 FWD_BWD = 3  # backward costs about twice the forward (input and weight gradients)
@@ -68,12 +69,12 @@ def matmul_gflops(dtype: torch.dtype, size: int = 2048, repeats: int = 10) -> fl
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--minibatch", type=int, default=256)
-    parser.add_argument("--seq-len", type=int, default=32)
-    parser.add_argument("--mini-epochs", type=int, default=4)
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--target", type=float, default=300.0, help="env steps/s to compare the ceiling with")
+    parser.add_argument("--minibatch", type=int_at_least(1), default=256)
+    parser.add_argument("--seq-len", type=int_at_least(1), default=32)
+    parser.add_argument("--mini-epochs", type=int_at_least(1), default=4)
+    parser.add_argument("--repeats", type=int_at_least(1), default=5)
+    parser.add_argument("--threads", type=int_at_least(1), default=2)
+    parser.add_argument("--target", type=number_above(0), default=300.0, help="env steps/s to compare the ceiling with")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--profile", action="store_true", help="print torch.profiler's top ops of the bfloat16 minibatch")
     args = parser.parse_args()

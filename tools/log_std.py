@@ -16,12 +16,13 @@ import torch
 
 from vitac.envs.gym_env import InsertionEnv
 from vitac.evaluate import load_policy
+from vitac.utils.cli import int_at_least
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("ckpt")
-    parser.add_argument("--episodes", type=int, default=3)
+    parser.add_argument("--episodes", type=int_at_least(1), default=3)
     args = parser.parse_args()
     torch.set_num_threads(1)
     policy, cfg, settings = load_policy(args.ckpt)

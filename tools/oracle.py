@@ -16,13 +16,14 @@ from tqdm import tqdm
 
 from vitac.envs.gym_env import InsertionEnv
 from vitac.rl.evaluation import summarize
+from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--episodes", type=int, default=200)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--episodes", type=int_at_least(1), default=200)
+    parser.add_argument("--seed", type=int_at_least(0), default=0)
     parser.add_argument("--peg-shape", default="round")
     parser.add_argument("--peg-size", type=int, default=16)
     parser.add_argument("--random", action="store_true", help="uniform random actions instead of the oracle")

@@ -14,14 +14,15 @@ from pathlib import Path
 
 from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco loads
 from vitac.envs.oracle import OracleController
+from vitac.utils.cli import int_at_least
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS, policy_actor, record_episode, save_video
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", default=None, help="policy checkpoint (default: the scripted oracle)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--every", type=int, default=3, help="render every k-th control step")
+    parser.add_argument("--seed", type=int_at_least(0), default=0)
+    parser.add_argument("--every", type=int_at_least(1), default=3, help="render every k-th control step")
     parser.add_argument("--out", type=Path, default=Path("episode.gif"))
     args = parser.parse_args()
     if args.ckpt:

@@ -18,11 +18,13 @@ from pathlib import Path
 import numpy as np
 from plot_run import column, read_segments
 
+from vitac.utils.cli import number_above
+
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
-    parser.add_argument("--window", type=float, default=1e6, help="env steps per training-success mean")
+    parser.add_argument("--window", type=number_above(0), default=1e6, help="env steps per training-success mean")
     args = parser.parse_args()
     rows = read_segments(args.metrics)[0]
     values = lambda key: [v for _, v in column(rows, key)]  # noqa: E731
