@@ -5,33 +5,25 @@ from __future__ import annotations
 import argparse
 
 
-def int_at_least(minimum: int):
-    """An argparse `type` accepting integers >= `minimum`."""
-
-    def parse(text: str) -> int:
+def _checked(convert, kind: str, accept, allowed: str):
+    def parse(text: str):
         try:
-            value = int(text)
+            value = convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"{value} is not allowed: expected an integer >= {minimum}")
+            raise argparse.ArgumentTypeError(f"{text!r} is not {kind}") from None
+        if not accept(value):
+            raise argparse.ArgumentTypeError(f"{value} is not allowed: expected {allowed}")
         return value
 
-    parse.__name__ = f"integer >= {minimum}"  # argparse names the type in its messages
+    parse.__name__ = allowed  # argparse names the type in its messages
     return parse
+
+
+def int_at_least(minimum: int):
+    """An argparse `type` accepting integers >= `minimum`."""
+    return _checked(int, "an integer", lambda value: value >= minimum, f"an integer >= {minimum}")
 
 
 def number_above(bound: float):
     """An argparse `type` accepting numbers > `bound`."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not value > bound:
-            raise argparse.ArgumentTypeError(f"{value} is not allowed: expected a number > {bound}")
-        return value
-
-    parse.__name__ = f"number > {bound}"
-    return parse
+    return _checked(float, "a number", lambda value: value > bound, f"a number > {bound}")
