@@ -445,9 +445,12 @@ def test_every_algo_key_has_its_check():
     assert set(compose_config([]).algo) == checked
 
 
-def test_evaluate_reports_success_with_interval(tmp_path):
+def test_evaluate_reports_success_with_interval(tmp_path, capfd):
     run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
+    capfd.readouterr()
     report = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "e.json"))
+    progress = capfd.readouterr().err  # the bar of finished episodes, with rate and ETA
+    assert "evaluate: 100%" in progress and "2/2" in progress and "ep/s" in progress
     assert report["episodes"] == 2 and 0.0 <= report["success_rate"] <= 1.0
     low, high = report["success_ci95"]
     assert 0.0 <= low <= report["success_rate"] <= high <= 1.0

@@ -65,7 +65,7 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
     torch.set_num_threads(1)
     envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed, step_in_main=step_in_main)
     try:
-        summary = run_episodes(policy, envs, episodes, seed, deterministic=deterministic)
+        summary = run_episodes(policy, envs, episodes, seed, deterministic=deterministic, progress=True)
     finally:
         envs.close()
     report = dict(ckpt=str(ckpt), preset=cfg.preset.name, obs=cfg.obs.name, seed=seed,

@@ -7,19 +7,21 @@ from collections import Counter
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 
 @torch.inference_mode()
-def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = True) -> dict:
+def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = True, progress: bool = False) -> dict:
     """Run `episodes` episodes (a multiple of envs.num_envs) with the mean action, or with actions sampled
     from the policy's Gaussian (noise from a generator seeded with `seed`, on the CPU whatever the policy's
-    device); returns per-episode results."""
+    device); returns per-episode results. `progress` shows a bar of finished episodes with rate and ETA."""
     policy.eval()
     device = policy.device
     generator = torch.Generator().manual_seed(seed)
     n = envs.num_envs
     results = []
     rounds = math.ceil(episodes / n)
+    bar = tqdm(total=episodes, desc="evaluate", unit="ep", disable=not progress)
     for r in range(rounds):
         obs, _ = envs.reset(seed=seed + r * n)
         state, starts = policy.initial_state(n, device), torch.ones(n)
@@ -38,6 +40,8 @@ def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = T
                                     keypoint_distance=float(env_info["keypoint_distance"]),
                                     **{k: env_info[k] for k in ("outcome", "peg_offset_xy", "peg_height", "peg_tilt")}))
             done |= terminated | truncated
+            bar.update(min(len(results), episodes) - bar.n)
+    bar.close()
     return summarize(results[:episodes])
 
 
