@@ -293,6 +293,10 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
     rows, starts = plot_run.read_segments([first, resumed, warm])
     assert [float(r["charts/env_steps"]) for r in rows] == [100, 200, 300, 400, 450, 550]
     assert starts == [300, 450]
+    rows, starts = plot_run.read_segments([first, resumed, warm], max_steps=400)  # one budget for every run
+    assert [float(r["charts/env_steps"]) for r in rows] == [100, 200, 300, 400] and starts == [300]
+    with pytest.raises(SystemExit, match="no rows up to 50 env steps"):
+        plot_run.read_segments([first], max_steps=50)
     # tools/run_summary.py reads segments the same way; the figures docs/results.md quotes for one segment:
     summary = subprocess.run([sys.executable, "tools/run_summary.py",
                               "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
@@ -301,6 +305,10 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
     assert summary[1] == "median env steps/s: 1028"
     assert "overall 75%" in summary[5]
     assert summary[-2].startswith("learning rate range: ") and summary[-1].startswith("explained variance: first ")
+    cut = subprocess.run([sys.executable, "tools/run_summary.py", "--max-steps", "1e7",
+                          "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
+                         capture_output=True, text=True).stdout.splitlines()
+    assert cut[0] == "env steps: 9,576,448 -> 9,998,336 (207 iterations)"  # 2,048 env steps an iteration
 
 
 def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_foreign_csv(tmp_path):

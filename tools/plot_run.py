@@ -5,13 +5,14 @@ learning rate), all against env steps.
     python tools/plot_run.py outputs/2026-11-25/10-00-00/csv/metrics.csv --out curves.png [--title ...]
         [--baseline other/metrics.csv --baseline-label "..."]
     python tools/plot_run.py first/csv/metrics.csv resumed/csv/metrics.csv --out curves.png   # one run, resumed
+    python tools/plot_run.py seed1/csv/metrics.csv --compare seed0/csv/metrics.csv --max-steps 8e6 --out c.png
 
 Several CSVs are one run's segments (a run resumed into another directory, or warm-started from the previous
 segment's last checkpoint with init_ckpt), in order; a vertical line marks where each later segment starts.
 
 `--baseline` overlays another run's curriculum scale on the first panel, to compare how fast two runs
 widen the randomization. `--compare` overlays another run's (or branch's) training success, evaluations
-and KL in grey, e.g. two continuations of one checkpoint.
+and KL in grey, e.g. two continuations of one checkpoint. `--max-steps` cuts every run at one budget.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import argparse
 import csv
 import math
 from pathlib import Path
+
+from vitac.utils.cli import number_above
 
 
 def column(rows, key):
@@ -34,8 +37,9 @@ def column(rows, key):
     return out
 
 
-def read_segments(paths):
-    """The rows of one run's metrics CSVs in order, and the env steps at which each later segment starts.
+def read_segments(paths, max_steps: float | None = None):
+    """The rows of one run's metrics CSVs in order, and the env steps at which each later segment starts;
+    with `max_steps`, only the rows up to that many env steps (to compare runs at one budget).
 
     A segment whose env steps start below the previous segment's last (a warm start with init_ckpt, which
     counts from 0) is shifted to start where the previous one ended.
@@ -56,6 +60,11 @@ def read_segments(paths):
                     r["charts/env_steps"] = str(float(r["charts/env_steps"]) + end)
             resumes.append(float(segment[0]["charts/env_steps"]))
         rows += segment
+    if max_steps is not None:
+        rows = [r for r in rows if float(r["charts/env_steps"]) <= max_steps]
+        resumes = [steps for steps in resumes if steps <= max_steps]
+        if not rows:
+            raise SystemExit(f"{[str(p) for p in paths]}: no rows up to {max_steps:,.0f} env steps")
     return rows, resumes
 
 
@@ -74,14 +83,16 @@ def main():
     parser.add_argument("--baseline-label", default="baseline")
     parser.add_argument("--compare", type=Path, nargs="+", default=None, help="metrics CSV(s) of a run to overlay")
     parser.add_argument("--compare-label", default="other run")
+    parser.add_argument("--max-steps", type=number_above(0), default=None,
+                        help="plot every run up to this many env steps (compare at one budget)")
     args = parser.parse_args()
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows, resumes = read_segments(args.metrics)
-    other = read_segments(args.compare)[0] if args.compare else []
+    rows, resumes = read_segments(args.metrics, args.max_steps)
+    other = read_segments(args.compare, args.max_steps)[0] if args.compare else []
     fig, axes = plt.subplots(1, 4, figsize=(18, 3.8))
     for ax in axes:
         for steps in resumes:
@@ -94,7 +105,7 @@ def main():
     if scale:
         axes[0].plot(*zip(*scale, strict=True), "k--", label="curriculum randomization scale")
     if args.baseline:
-        baseline = column(read_segments([args.baseline])[0], "charts/randomization_scale")
+        baseline = column(read_segments([args.baseline], args.max_steps)[0], "charts/randomization_scale")
         axes[0].plot(*zip(*baseline, strict=True), ":", color="grey", label=f"scale, {args.baseline_label}")
     other_train = column(other, "charts/success_rate")
     if other_train:

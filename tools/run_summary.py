@@ -1,6 +1,7 @@
 """The figures docs/results.md quotes for a training run, from its metrics CSV(s).
 
     python tools/run_summary.py <run>/csv/metrics.csv [<resumed run>/csv/metrics.csv ...] [--window 1e6]
+        [--max-steps 8e6]   # only the iterations up to that many env steps, to compare runs at one budget
 
 Prints env steps covered, iterations, median env steps/s, the learning rate (median and 10th-90th
 percentile), median approximate KL, entropy at the first and last iteration, training success (mean per
@@ -25,8 +26,10 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
     parser.add_argument("--window", type=number_above(0), default=1e6, help="env steps per training-success mean")
+    parser.add_argument("--max-steps", type=number_above(0), default=None,
+                        help="summarize up to this many env steps (compare runs at one budget)")
     args = parser.parse_args()
-    rows = read_segments(args.metrics)[0]
+    rows = read_segments(args.metrics, args.max_steps)[0]
     values = lambda key: [v for _, v in column(rows, key)]  # noqa: E731
     steps, lr, entropy = values("charts/env_steps"), values("charts/lr"), values("losses/entropy")
     success, evals = column(rows, "charts/success_rate"), values("eval/success_rate")
