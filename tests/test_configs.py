@@ -13,8 +13,9 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 from tests.conftest import CONF, compose_config
-from vitac.envs.config import ConfigError, InsertionConfig, observation_shapes
+from vitac.envs.config import InsertionConfig, observation_shapes
 from vitac.train import build_policy_from_config, env_settings
+from vitac.utils.checks import ConfigError
 
 TABLE_I = [  # (obs, fusion) for every row of the paper's Table I
     ("privileged", "naive"), ("privileged_contact", "naive"), ("tactile", "naive"), ("wrist", "naive"),

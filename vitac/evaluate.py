@@ -19,9 +19,9 @@ from omegaconf import DictConfig, OmegaConf
 from vitac.envs.config import InsertionConfig, Randomization
 from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.rl.evaluation import run_episodes
-from vitac.rl.hyperparameters import check_flag, check_groups, check_int
 from vitac.train import build_policy_from_config, env_settings
 from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.checks import check_flag, check_groups, check_int
 from vitac.utils.records import write_json
 
 log = logging.getLogger(__name__)

@@ -8,16 +8,9 @@ import numpy as np
 
 from vitac.envs import props
 from vitac.sensors.tactile import PEG_SHAPES, PegGeometry
+from vitac.utils.checks import refuse
 
 OBSERVATIONS = ("proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state")
-
-
-class ConfigError(ValueError):
-    """A configuration value is not allowed; the message names the key, the value and what is allowed."""
-
-
-def _fail(key: str, value, allowed: str):
-    raise ConfigError(f"{key}={value!r} is not allowed: expected {allowed}")
 
 
 @dataclass
@@ -50,7 +43,7 @@ class Randomization:
         its midpoint and, unless named, the socket observation noise to 0. Which factor does a policy fail on?"""
         unknown = [n for n in names if n not in RANDOMIZED_FACTORS]
         if unknown or not names:
-            _fail("randomize_only", list(names), f"a non-empty list of {list(RANDOMIZED_FACTORS)}")
+            refuse("randomize_only", list(names), f"a non-empty list of {list(RANDOMIZED_FACTORS)}")
         values = asdict(self)
         for name, keys in RANDOMIZED_FACTORS.items():
             if name in names:
@@ -132,12 +125,12 @@ class InsertionConfig:
         known = {f.name for f in fields(cls)}
         for key in values:
             if key not in known:
-                _fail(f"env.{key}", values[key], f"one of {sorted(known)}")
+                refuse(f"env.{key}", values[key], f"one of {sorted(known)}")
         rand = dict(values.pop("randomization", None) or {})
         rand_known = {f.name for f in fields(Randomization)}
         for key in rand:
             if key not in rand_known:
-                _fail(f"env.randomization.{key}", rand[key], f"one of {sorted(rand_known)}")
+                refuse(f"env.randomization.{key}", rand[key], f"one of {sorted(rand_known)}")
         cfg = cls(**values, randomization=Randomization(**rand))
         cfg.validate()
         return cfg
@@ -147,67 +140,67 @@ class InsertionConfig:
 
     def validate(self) -> None:
         if self.peg_shape not in PEG_SHAPES:
-            _fail("env.peg_shape", self.peg_shape, f"one of {list(PEG_SHAPES)}")
+            refuse("env.peg_shape", self.peg_shape, f"one of {list(PEG_SHAPES)}")
         if self.peg_size not in props.ROUND_PEG_DIAMETER:
-            _fail("env.peg_size", self.peg_size, f"one of {sorted(props.ROUND_PEG_DIAMETER)} (mm)")
+            refuse("env.peg_size", self.peg_size, f"one of {sorted(props.ROUND_PEG_DIAMETER)} (mm)")
         for key in ("physics_substeps", "episode_steps", "taxel_rows", "taxel_cols", "camera_size", "num_keypoints"):
             value = getattr(self, key)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                _fail(f"env.{key}", value, "a positive integer")
+                refuse(f"env.{key}", value, "a positive integer")
         for key in ("control_hz", "pos_action_scale", "rot_action_scale", "hand_mass", "hand_inertia", "finger_kp",
                     "density", "tactile_kn", "success_threshold", "camera_fovy", "keypoint_scale"):
             value = getattr(self, key)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:
-                _fail(f"env.{key}", value, "a number > 0")
+                refuse(f"env.{key}", value, "a number > 0")
         for key in ("peg_friction", "socket_friction", "pad_friction", "tactile_kt", "tactile_mu", "joint_damping",
                     "finger_kd", "taxel_margin", "keypoint_reward_scale", "action_gradient_penalty_scale",
                     "lateral_reward_scale", "success_reward_scale"):
             value = getattr(self, key)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
-                _fail(f"env.{key}", value, "a number >= 0")
+                refuse(f"env.{key}", value, "a number >= 0")
         for key in ("prop_gains", "deriv_gains"):
             value = getattr(self, key)
             if len(value) != 6 or any(v < 0 for v in value):
-                _fail(f"env.{key}", value, "6 non-negative numbers (3 translational, 3 rotational)")
+                refuse(f"env.{key}", value, "6 non-negative numbers (3 translational, 3 rotational)")
         min_timeconst = 2.0 / (self.control_hz * self.physics_substeps)
         if not isinstance(self.socket_contact_timeconst, (int, float)) or not self.socket_contact_timeconst >= min_timeconst:
-            _fail("env.socket_contact_timeconst", self.socket_contact_timeconst,
+            refuse("env.socket_contact_timeconst", self.socket_contact_timeconst,
                   f"a time constant >= 2 physics timesteps ({min_timeconst:.4g} s), which MuJoCo needs for stability")
         if self.camera_fovy >= 180:
-            _fail("env.camera_fovy", self.camera_fovy, "a field of view below 180 degrees")
+            refuse("env.camera_fovy", self.camera_fovy, "a field of view below 180 degrees")
         if self.clearance is not None and not self.clearance > 0:
-            _fail("env.clearance", self.clearance, "a diametral clearance > 0 (m), or null for TacSL's")
+            refuse("env.clearance", self.clearance, "a diametral clearance > 0 (m), or null for TacSL's")
         if 2 * self.taxel_margin >= min(0.024, 0.032):
-            _fail("env.taxel_margin", self.taxel_margin, "less than half the pad width (0.012 m)")
+            refuse("env.taxel_margin", self.taxel_margin, "less than half the pad width (0.012 m)")
         unknown = [o for o in self.observations if o not in OBSERVATIONS]
         if unknown:
-            _fail("env.observations", list(self.observations), f"a subset of {list(OBSERVATIONS)}")
+            refuse("env.observations", list(self.observations), f"a subset of {list(OBSERVATIONS)}")
         r = self.randomization
         for key in ("ee_pos", "ee_rot", "socket_pos"):
             low, high = getattr(r, f"{key}_low"), getattr(r, f"{key}_high")
             if len(low) != 3 or len(high) != 3 or any(lo > hi for lo, hi in zip(low, high, strict=True)):
-                _fail(f"env.randomization.{key}_low/high", (low, high), "two lists of 3 with low <= high")
+                refuse(f"env.randomization.{key}_low/high", (low, high), "two lists of 3 with low <= high")
         for key in ("peg_in_hand_depth", "peg_in_hand_tilt", "pad_stiffness", "pad_damping", "joint_damping_noise"):
             value = getattr(r, key)
             if len(value) != 2 or value[0] > value[1]:
-                _fail(f"env.randomization.{key}", value, "[low, high] with low <= high")
+                refuse(f"env.randomization.{key}", value, "[low, high] with low <= high")
         depth = r.peg_in_hand_depth
         if depth[0] <= 0.0 or depth[1] >= props.PEG_LENGTH:
-            _fail("env.randomization.peg_in_hand_depth", depth,
+            refuse("env.randomization.peg_in_hand_depth", depth,
                   f"a range inside (0, {props.PEG_LENGTH}) m so that the pads hold the peg")
         if r.pad_stiffness[0] <= 0 or r.pad_damping[0] < 0:
-            _fail("env.randomization.pad_stiffness/pad_damping", (r.pad_stiffness, r.pad_damping),
+            refuse("env.randomization.pad_stiffness/pad_damping", (r.pad_stiffness, r.pad_damping),
                   "stiffness > 0 and damping >= 0")
         if isinstance(r.scale, bool) or not isinstance(r.scale, (int, float)) or not 0.0 <= r.scale <= 1.0:
-            _fail("env.randomization.scale", r.scale, "a number in [0, 1] (1 is the paper's randomization)")
+            refuse("env.randomization.scale", r.scale, "a number in [0, 1] (1 is the paper's randomization)")
         if r.socket_obs_noise < 0:
-            _fail("env.randomization.socket_obs_noise", r.socket_obs_noise, "a number >= 0")
+            refuse("env.randomization.socket_obs_noise", r.socket_obs_noise, "a number >= 0")
         if self.joint_damping + r.joint_damping_noise[0] < 0:
-            _fail("env.randomization.joint_damping_noise", r.joint_damping_noise,
+            refuse("env.randomization.joint_damping_noise", r.joint_damping_noise,
                   f"a range that keeps joint damping ({self.joint_damping}) non-negative")
         peg, hole = self.peg_geometry(), self.hole_half_extents()
         if hole[0] <= peg.half_x or (self.peg_shape == "rectangular" and hole[1] <= peg.half_y):
-            _fail("env.clearance", self.clearance, "a clearance that leaves the hole wider than the peg")
+            refuse("env.clearance", self.clearance, "a clearance that leaves the hole wider than the peg")
 
     def peg_geometry(self) -> PegGeometry:
         if self.peg_shape == "round":

@@ -17,6 +17,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 from vitac.envs.gym_env import InsertionEnv
+from vitac.utils.checks import check_groups
 
 
 class _EnvGroup:
@@ -110,11 +111,7 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, config: dict, num_envs: int, num_workers: int = 0, seed: int = 0, step_in_main: bool = False):
-        if num_envs < 1:
-            raise ValueError(f"algo.num_envs={num_envs!r} is not allowed: expected a positive integer")
-        if num_workers < 0 or (num_workers and num_envs % num_workers):
-            raise ValueError(f"algo.num_workers={num_workers!r} is not allowed: expected 0 or a divisor of "
-                             f"num_envs={num_envs}")
+        check_groups(num_envs, num_workers)
         self.num_envs, self.num_workers = num_envs, num_workers
         # The configured randomization scale (1: the paper's), which a curriculum overrides while it runs.
         self.configured_scale = float((config.get("randomization") or {}).get("scale", 1.0))

@@ -1,7 +1,7 @@
 """The `algo` group's values, the trainer's threads and the seed, checked before anything is built or simulated:
 each refusal names the key, the value and what is allowed. Values that only one component reads (the
 learning-rate schedule, the curriculum) are checked by that component's constructor, which train() also runs
-before simulating. `vitac.evaluate` checks its own keys with the same helpers."""
+before simulating. `vitac.evaluate` checks its own keys with the same helpers (`vitac/utils/checks.py`)."""
 
 from __future__ import annotations
 
@@ -9,36 +9,11 @@ import math
 import numbers
 
 from vitac.rl.buffer import check_batch_layout
-
-
-def refuse(key: str, value, allowed: str):
-    raise ValueError(f"{key}={value!r} is not allowed: expected {allowed}")
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+from vitac.utils.checks import check_flag, check_groups, check_int, is_int, refuse
 
 
 def _is_number(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def check_int(key: str, value, minimum: int) -> None:
-    if not _is_int(value) or value < minimum:
-        refuse(key, value, "a positive integer" if minimum == 1 else f"an integer >= {minimum}")
-
-
-def check_flag(key: str, value) -> None:
-    if not isinstance(value, bool):
-        refuse(key, value, "true or false")
-
-
-def check_groups(num_envs: int, num_workers: int, prefix: str = "algo.") -> None:
-    """Environments split into equal worker groups."""
-    check_int(f"{prefix}num_envs", num_envs, 1)
-    check_int(f"{prefix}num_workers", num_workers, 0)
-    if num_workers and num_envs % num_workers:
-        refuse(f"{prefix}num_workers", num_workers, f"0 or a divisor of {prefix}num_envs={num_envs}")
 
 
 POSITIVE_INTS = ("horizon", "seq_len", "minibatch_size", "mini_epochs", "iterations", "eval_every",
@@ -71,7 +46,7 @@ def check_algo(algo: dict) -> None:
 
 def check_seed(seed) -> None:
     """A run's seed: an integer, or null to leave the generators unseeded."""
-    if seed is not None and not _is_int(seed):
+    if seed is not None and not is_int(seed):
         refuse("seed", seed, "an integer or null")
 
 
