@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vitac.rl.evaluation import wilson_interval
+from vitac.utils.records import read_whole
 
 
 def quartiles(values) -> str:
@@ -72,10 +73,7 @@ def pooled(reports: list, names: list) -> str:
 
 def read_report(path: Path) -> dict:
     """One `vitac.evaluate` report; a file that is not one is refused with its name, before any table is printed."""
-    try:
-        report = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise SystemExit(f"{path}: cannot be read as a vitac.evaluate report ({err})") from err
+    report = read_whole(path, json.load, "a vitac.evaluate report")
     if not isinstance(report, dict) or not {"episodes", "success_rate", "seed"} <= report.keys():
         raise SystemExit(f"{path}: not a vitac.evaluate report (no episodes, success_rate and seed)")
     if "final_peg" not in report:

@@ -23,6 +23,7 @@ import math
 from pathlib import Path
 
 from vitac.utils.cli import number_above
+from vitac.utils.records import read_whole
 
 
 def column(rows, key):
@@ -46,11 +47,8 @@ def read_segments(paths, max_steps: float | None = None):
     """
     rows, resumes = [], []
     for i, path in enumerate(paths):
-        try:
-            with open(path, newline="") as f:
-                segment = [r for r in csv.DictReader(f) if r.get("charts/env_steps")]
-        except (OSError, UnicodeDecodeError, csv.Error) as err:
-            raise SystemExit(f"{path}: cannot be read as a metrics CSV ({err})") from err
+        segment = read_whole(path, lambda f: [r for r in csv.DictReader(f) if r.get("charts/env_steps")],
+                             "a metrics CSV")
         if not segment:  # a plot or summary of it would silently show nothing
             raise SystemExit(f"{path}: no rows with charts/env_steps: not a vitac metrics CSV")
         if i > 0:

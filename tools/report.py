@@ -21,10 +21,15 @@ from pathlib import Path
 
 import yaml
 
+from vitac.utils.records import read_whole
+
 PAPER = {"Privileged": 96.74, "+ Contact forces": 98.96, "Tactile": 91.41, "Wrist": 93.23,
          "Wrist + Contact forces": 96.09, "Fusion - Naive": 92.97, "Fusion - Gated (lambda_sym=0)": 94.53,
          "Fusion - CMT (lambda_sym=0)": 96.22, "Fusion - Gated + Symmetry (lambda_sym=1)": 95.05,
          "Fusion - CMT + Symmetry (lambda_sym=1)": 96.59}
+
+
+UNREADABLE = "; evaluate or rerun that run again, or leave its directory out"
 
 
 def _float(x):
@@ -35,22 +40,12 @@ def _float(x):
     return None if math.isnan(value) else value
 
 
-def _read(path: Path, parse):
-    """`parse` of the open file; a file it cannot read (cut short, not text) stops the report, naming the file."""
-    try:
-        with open(path, newline="") as f:
-            return parse(f)
-    except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError, csv.Error) as err:
-        raise SystemExit(f"{path}: cannot be read ({type(err).__name__}: {err}); evaluate or rerun that run again, "
-                         "or leave its directory out") from err
-
-
 def load_run(run: Path) -> dict | None:
     config_path, metrics_path = run / "config.yaml", run / "csv" / "metrics.csv"
     if not (config_path.is_file() and metrics_path.is_file()):
         return None
-    cfg = _read(config_path, yaml.safe_load)
-    rows = _read(metrics_path, lambda f: list(csv.DictReader(f)))
+    cfg = read_whole(config_path, yaml.safe_load, hint=UNREADABLE)
+    rows = read_whole(metrics_path, lambda f: list(csv.DictReader(f)), hint=UNREADABLE)
     curve = [(_float(r.get("charts/env_steps")), _float(r.get("eval/success_rate")), _float(r.get("charts/reward_per_step")))
              for r in rows]
     evals = [(s, e) for s, e, _ in curve if s is not None and e is not None]
@@ -63,7 +58,7 @@ def load_run(run: Path) -> dict | None:
                   env_steps=max((s for s, _, _ in curve if s is not None), default=0))
     report = run / "checkpoints" / "last.eval.json"
     if report.is_file():
-        data = _read(report, json.load)
+        data = read_whole(report, json.load, hint=UNREADABLE)
         result.update(success=data["success_rate"], steps_to_success=data.get("steps_to_success_mean"),
                       episodes=data["episodes"])
     else:

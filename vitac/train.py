@@ -96,7 +96,8 @@ def train(cfg: DictConfig) -> dict:
     """Validate, seed, build env and policy, run PPO; returns the last metrics and the output paths."""
     # Everything that can be checked without simulating is checked first.
     check_seed(cfg.seed)
-    check_algo(OmegaConf.to_container(cfg.algo, resolve=True))
+    algo = OmegaConf.to_container(cfg.algo, resolve=True)  # the PPO module's keyword arguments, popped below
+    check_algo(algo)
     settings = env_settings(cfg)
     env_config = InsertionConfig.from_dict(settings)
     accelerator = check_accelerator(cfg.trainer.accelerator)
@@ -116,7 +117,6 @@ def train(cfg: DictConfig) -> dict:
         check_resume(cfg, policy, ckpt_path)
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
     resolved = OmegaConf.to_container(cfg, resolve=True)
-    algo = OmegaConf.to_container(cfg.algo, resolve=True)
     num_envs, num_workers, step_in_main = algo.pop("num_envs"), algo.pop("num_workers"), algo.pop("step_in_main")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every, video_every = algo.pop("save_every"), algo.pop("eval_video_every")

@@ -1,13 +1,17 @@
-"""JSON records written whole: a tool's results with the command line that reproduces them, and evaluation
-reports, each replacing its file only once completely written."""
+"""Files written and read whole: JSON records (a tool's results with the command line that reproduces them,
+evaluation reports), each replacing its file only once completely written; and the reading side, which
+refuses a file it cannot parse with its path instead of a traceback."""
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import sys
 import tempfile
 from pathlib import Path
+
+import yaml
 
 
 def write_json(path: Path, data) -> None:
@@ -30,3 +34,14 @@ def write_record(path: Path, **fields) -> None:
     """Write `fields` plus `command` (this process's command line, as a tool in tools/ is run) to `path`."""
     command = " ".join([f"python tools/{Path(sys.argv[0]).name}", *sys.argv[1:]])
     write_json(path, dict(fields, command=command))
+
+
+def read_whole(path: Path, parse, what: str = "", hint: str = ""):
+    """`parse` of the open file; a file it cannot read (missing, cut short, not text, not the format) stops the
+    tool with a message naming the file, `what` it should have been and a `hint`, before anything is printed."""
+    try:
+        with open(path, newline="") as f:
+            return parse(f)
+    except (OSError, UnicodeDecodeError, ValueError, csv.Error, yaml.YAMLError) as err:
+        as_what = f" as {what}" if what else ""
+        raise SystemExit(f"{path}: cannot be read{as_what} ({type(err).__name__}: {err}){hint}") from err
