@@ -365,6 +365,22 @@ def test_outcomes_refuses_a_truncated_or_foreign_report_before_printing_anything
         assert result.returncode != 0 and f"{bad.name}: {reason}" in result.stderr and result.stdout == ""
 
 
+@pytest.mark.parametrize("args", [
+    ["tools/run_summary.py", "docs/data/results/privileged_32envs_seed1_metrics.csv"],
+    ["tools/outcomes.py", "docs/data/results/privileged_32envs_seed1_eval_paper.json"],
+])
+def test_printing_tools_stop_quietly_when_their_reader_has_gone(args):
+    # `tool ... | head`: the reader closes early. Here it is gone before the tool writes at all.
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        tool = subprocess.run([sys.executable, *args], cwd=ROOT, stdout=write_end, stderr=subprocess.PIPE, text=True)
+    finally:
+        os.close(write_end)
+    assert "BrokenPipeError" not in tool.stderr and "Traceback" not in tool.stderr, tool.stderr
+    assert tool.returncode == -signal.SIGPIPE  # ended by the signal, as `head`'s other writers are
+
+
 def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_others():
     pooled = _tool("outcomes").pooled
     setting = dict(ckpt="run/last.ckpt", randomization_scale=1.0, socket_obs_noise=0.005, randomize_only=None,

@@ -16,10 +16,11 @@ import torch
 
 from vitac.envs.gym_env import InsertionEnv
 from vitac.evaluate import load_policy
-from vitac.utils.cli import int_at_least
+from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
 
 
 def main():
+    stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("ckpt")
     parser.add_argument("--episodes", type=int_at_least(1), default=3)

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vitac.rl.evaluation import wilson_interval
+from vitac.utils.cli import stop_quietly_when_the_reader_closes
 from vitac.utils.records import read_whole
 
 
@@ -82,6 +83,7 @@ def read_report(path: Path) -> dict:
 
 
 def main():
+    stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("reports", type=Path, nargs="+")
     parser.add_argument("--paired", action="store_true", help="compare two reports of the same episodes")

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import yaml
 
+from vitac.utils.cli import stop_quietly_when_the_reader_closes
 from vitac.utils.records import read_whole
 
 PAPER = {"Privileged": 96.74, "+ Contact forces": 98.96, "Tactile": 91.41, "Wrist": 93.23,
@@ -144,6 +145,7 @@ def _save(fig, path: Path) -> Path:
 
 
 def main():
+    stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dirs", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, default=Path("report"))

@@ -19,10 +19,11 @@ from pathlib import Path
 import numpy as np
 from plot_run import column, read_segments
 
-from vitac.utils.cli import number_above
+from vitac.utils.cli import number_above, stop_quietly_when_the_reader_closes
 
 
 def main():
+    stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
     parser.add_argument("--window", type=number_above(0), default=1e6, help="env steps per training-success mean")

@@ -1,8 +1,11 @@
-"""argparse types for the tools' counts: a bad value is refused by argparse, naming the flag, before any work."""
+"""What the tools share on the command line: argparse types for their counts (a bad value is refused by
+argparse, naming the flag, before any work), and a quiet stop when their output is piped into a reader that
+closes early."""
 
 from __future__ import annotations
 
 import argparse
+import signal
 
 
 def _checked(convert, kind: str, accept, allowed: str):
@@ -27,3 +30,10 @@ def int_at_least(minimum: int):
 def number_above(bound: float):
     """An argparse `type` accepting numbers > `bound`."""
     return _checked(float, "a number", lambda value: value > bound, f"a number > {bound}")
+
+
+def stop_quietly_when_the_reader_closes() -> None:
+    """End at once, without a BrokenPipeError traceback, when stdout's reader goes away (`tool ... | head`),
+    as Unix tools do; Python otherwise ignores SIGPIPE and fails on its next write or at exit."""
+    if hasattr(signal, "SIGPIPE"):  # POSIX only
+        signal.signal(signal.SIGPIPE, signal.SIG_DFL)
