@@ -119,11 +119,16 @@ def test_lean_control_step_gives_composers_trajectory_and_observations_bit_for_b
     rng = np.random.default_rng(0)
     ours.reset()
     composers.reset()
+    # The critic state's contact forces differ by design: ours are the last substep's solve, composer's a
+    # solve for the final state (test_contact_forces_are_the_last_substeps_solve_and_a_fresh_one_after_reset).
+    forces = slice(-13, -4)  # before the peg-to-socket offset (3) and the keypoint distance (1)
     for t in range(300):  # random and straight-down actions, across an episode's end and reset
         action = rng.uniform(-1, 1, 6) if t % 2 else np.array([0, 0, -1.0, 0, 0, 0])
         a, b = ours.step(action), composers.step(action)
         assert a.step_type == b.step_type and a.reward == b.reward
         for k in a.observation:
+            if k == "critic_state":
+                a.observation[k][forces] = b.observation[k][forces] = 0.0
             np.testing.assert_array_equal(a.observation[k], b.observation[k])
     np.testing.assert_array_equal(ours.physics.get_state(), composers.physics.get_state())
     ours.close()
@@ -185,13 +190,16 @@ def test_keypoint_distance_is_the_mean_distance_between_matching_keypoints():
 
 
 def test_state_round_trip_continues_exactly():
-    e = InsertionEnv({"observations": ["proprio", "tactile_left"]}, seed=0)
+    e = InsertionEnv({"observations": ["proprio", "tactile_left", "contact_forces"]}, seed=0)
     e.reset(seed=5)
     for _ in range(10):
         e.step(np.full(6, 0.3))
-    state = e.get_state()
+    state, saved = e.get_state(), e.observation()
     ref = [e.step(np.full(6, -0.2))[0]["proprio"] for _ in range(5)]
     e.set_state(state)
+    restored = e.observation()
+    for k in saved:  # the contact forces too: the last substep's solve travels with the state
+        np.testing.assert_array_equal(restored[k], saved[k])
     again = [e.step(np.full(6, -0.2))[0]["proprio"] for _ in range(5)]
     e.close()
     np.testing.assert_array_equal(np.array(ref), np.array(again))
@@ -436,28 +444,14 @@ def test_oracle_success_over_200_episodes_is_at_least_95_percent():
     assert np.mean(successes) >= 0.95
 
 
-def test_contact_forces_stay_finite_and_match_a_fresh_solve():
+def _peg_forces_by_mj_contact_force(m, d) -> np.ndarray:
+    """Each slot (socket, left pad, right pad): mj_contactForce's world-frame sum of the forces on the peg."""
     import mujoco
 
-    from vitac.envs.oracle import OracleController
-
-    e = InsertionEnv({"observations": ["proprio", "contact_forces"]}, seed=0)
-    rng, oracle = np.random.default_rng(0), OracleController(e.task)
-    for ep in range(3):  # random actions, then the oracle: the last state presses the peg into the socket
-        e.reset(seed=20 + ep)
-        for _ in range(120):
-            obs, *_ = e.step(rng.uniform(-1, 1, 6) if ep < 2 else oracle(e.physics))
-            assert np.all(np.isfinite(obs["contact_forces"]))
-    # Each slot (socket, left pad, right pad) equals mj_contactForce's sum over a full forward pass on the same state.
-    m, d = e.physics.model.ptr, e.physics.data.ptr
-    fresh = mujoco.MjData(m)
-    fresh.qpos[:], fresh.qvel[:], fresh.ctrl[:], fresh.mocap_pos[:] = d.qpos, d.qvel, d.ctrl, d.mocap_pos
-    fresh.qacc_warmstart[:] = d.qacc_warmstart
-    mujoco.mj_forward(m, fresh)
     slot_of = {"gripper/left_pad": 1, "gripper/right_pad": 2}
     expected = np.zeros((3, 3))
-    for i in range(fresh.ncon):
-        c = fresh.contact[i]
+    for i in range(d.ncon):
+        c = d.contact[i]
         names = m.geom(c.geom1).name, m.geom(c.geom2).name
         peg_second = names[1].startswith("peg")
         if peg_second == names[0].startswith("peg"):
@@ -467,9 +461,54 @@ def test_contact_forces_stay_finite_and_match_a_fresh_solve():
         if slot is None:
             continue
         f = np.zeros(6)
-        mujoco.mj_contactForce(m, fresh, i, f)
+        mujoco.mj_contactForce(m, d, i, f)
         world = c.frame.reshape(3, 3).T @ f[:3]
         expected[slot] += world if peg_second else -world
-    assert np.abs(expected).min(axis=1).max() > 0 and np.linalg.norm(expected[0]) > 0.1  # the peg is on the socket
-    np.testing.assert_allclose(obs["contact_forces"].reshape(3, 3), expected, rtol=1e-3, atol=1e-3)
+    return expected
+
+
+def test_contact_forces_are_the_last_substeps_solve_and_a_fresh_one_after_reset():
+    import copy
+
+    import mujoco
+
+    from vitac.envs.oracle import OracleController
+
+    e = InsertionEnv({"observations": ["proprio", "contact_forces"]}, seed=0)
+    obs, _ = e.reset(seed=20)  # no substep yet: solved for the state
+    m, d, substeps = e.physics.model.ptr, e.physics.data.ptr, e.task.physics_steps_per_control_step
+    rng, oracle = np.random.default_rng(0), OracleController(e.task)
+
+    def fresh_solve():
+        fresh = copy.copy(d)
+        mujoco.mj_forward(m, fresh)
+        return _peg_forces_by_mj_contact_force(m, fresh)
+
+    def step_and_replay(action):
+        """One env step, and the same substeps replayed on a copy, stopped after the last substep's solve."""
+        before = copy.copy(d)
+        obs, *_ = e.step(action)
+        replay = copy.copy(before)
+        replay.ctrl[:] = d.ctrl  # the action's targets
+        mujoco.mj_step2(m, replay)
+        mujoco.mj_step(m, replay, substeps - 2)
+        mujoco.mj_step1(m, replay)
+        mujoco.mj_step2(m, replay)
+        last_solve = _peg_forces_by_mj_contact_force(m, replay)
+        mujoco.mj_step1(m, replay)
+        np.testing.assert_array_equal(replay.qpos, d.qpos)  # the replay is the env's own step
+        return obs["contact_forces"].reshape(3, 3), last_solve
+
+    np.testing.assert_allclose(obs["contact_forces"].reshape(3, 3), fresh_solve(), rtol=1e-5, atol=1e-6)
+    for _ in range(40):  # the hand swings the grasped peg about: the pads' forces change from substep to substep
+        observed, last_solve = step_and_replay(rng.uniform(-1, 1, 6))
+        assert np.all(np.isfinite(observed))
+        np.testing.assert_allclose(observed, last_solve, rtol=1e-5, atol=1e-6)
+    assert np.linalg.norm(observed[1:]) > 1.0  # the pads hold the peg
+    assert not np.allclose(observed, fresh_solve(), rtol=1e-3, atol=1e-3)  # a solve for the final state differs
+    e.reset(seed=22)
+    for _ in range(120):  # the oracle presses the peg into the socket
+        observed, last_solve = step_and_replay(oracle(e.physics))
+    assert np.linalg.norm(observed[0]) > 0.1  # the socket pushes on the peg
+    np.testing.assert_allclose(observed, last_solve, rtol=1e-5, atol=1e-6)
     e.close()

@@ -47,8 +47,8 @@ def single_env(steps: int) -> dict:
         if te or tr:
             env.reset()
     totals = dict(physics=0.0, render=0.0, tactile=0.0)
-    # Time the pieces inside real steps: composer's substeps, the wrist frame, both pads' fields.
-    _timed(env.physics, "step", totals, "physics")
+    # Time the pieces inside real steps: the substeps, the wrist frame, both pads' fields.
+    _timed(env.task, "step_physics", totals, "physics")
     _timed(env.task, "render_wrist", totals, "render")
     _timed(env.task, "raw_tactiles", totals, "tactile")
     resets = 0

@@ -10,7 +10,7 @@ scripted oracle (the peg aligned, pushed into the hole and held there, like a tr
 this one process; physics per control step; per substep, the wall time of MuJoCo and its timers for
 collision (narrow phase apart) and the constraint solve; contacts, constraint rows and solver iterations
 (read after each control step's substeps); and the constraint solve that the contact-force observation
-adds once per control step. `--opt NAME=VALUE` (a field of MuJoCo's mjOption) and `--disable FLAG` (an
+adds (only where no substep has run: the first observation of an episode), per control step. `--opt NAME=VALUE` (a field of MuJoCo's mjOption) and `--disable FLAG` (an
 mjtDisableBit without its mjDSBL_ prefix) time the same drivers under other solver or collision settings;
 they change the task's physics, so the successes column says whether the policy still copes.
 """
@@ -24,7 +24,6 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import torch
-from dm_control.mujoco import engine
 
 from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco renders
 from vitac.envs.insertion import InsertionTask
@@ -38,16 +37,17 @@ TIMERS = {"collision": mujoco.mjtTimer.mjTIMER_POS_COLLISION, "narrow_phase": mu
 
 
 class PhysicsMeter:
-    """Sums, over every physics.step call, wall time, MuJoCo's timers, contacts and constraint rows, and
-    the contact-force observation's extra solve; patches the classes, so `close` must undo it."""
+    """Sums, over every control step's substeps (InsertionTask.step_physics), wall time, MuJoCo's timers,
+    contacts and constraint rows, and the contact-force observation's own solves; patches the class, so
+    `close` must undo it."""
 
     def __init__(self, options: dict | None = None, disable_mask: int = 0):
         self.totals = dict(wall=0.0, substeps=0, calls=0, contacts=0, rows=0, solver_iterations=0, contact_force_solve=0.0,
                            contact_force_calls=0, **{k: 0.0 for k in TIMERS})
-        self._step, self._forces = engine.Physics.step, InsertionTask._contact_forces
+        self._step, self._forces = InsertionTask.step_physics, InsertionTask._contact_forces
         meter = self
 
-        def step(physics, nstep=1):
+        def step(task, physics, nstep):
             data, opt = physics.data.ptr, physics.model.ptr.opt
             for name, value in (options or {}).items():  # every call: composer may rebuild the model
                 setattr(opt, name, value)
@@ -55,7 +55,7 @@ class PhysicsMeter:
             for timer in TIMERS.values():  # the timers also run outside steps: count only what happens here
                 data.timer[timer].duration = 0.0
             start = time.perf_counter()
-            meter._step(physics, nstep)
+            meter._step(task, physics, nstep)
             meter.totals["wall"] += time.perf_counter() - start
             meter.totals["substeps"] += nstep
             meter.totals["calls"] += 1
@@ -73,10 +73,10 @@ class PhysicsMeter:
                 meter.totals["contact_force_solve"] += time.perf_counter() - start
                 meter.totals["contact_force_calls"] += 1
 
-        engine.Physics.step, InsertionTask._contact_forces = step, contact_forces
+        InsertionTask.step_physics, InsertionTask._contact_forces = step, contact_forces
 
     def close(self):
-        engine.Physics.step, InsertionTask._contact_forces = self._step, self._forces
+        InsertionTask.step_physics, InsertionTask._contact_forces = self._step, self._forces
 
     def report(self, control_steps: int, seconds: float) -> dict:
         t = self.totals
@@ -86,7 +86,7 @@ class PhysicsMeter:
                     physics_share=t["wall"] / seconds, substep_us=1e6 * t["wall"] / t["substeps"], **per_substep,
                     contacts_per_substep=t["contacts"] / t["calls"], constraint_rows_per_substep=t["rows"] / t["calls"],
                     solver_iterations_per_substep=t["solver_iterations"] / t["calls"],
-                    contact_force_solve_us_per_control_step=1e6 * t["contact_force_solve"] / max(t["contact_force_calls"], 1))
+                    contact_force_solve_us_per_control_step=1e6 * t["contact_force_solve"] / t["calls"])
 
 
 def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable_mask: int) -> dict:

@@ -106,7 +106,7 @@ class InsertionEnv(gym.Env):
         """Everything needed to continue this environment exactly: physics, task (with randomized model
         fields), RNG and episode flags."""
         physics = self._env.physics
-        return dict(physics=physics.get_state().copy(), ctrl=physics.data.ctrl.copy(),
+        return dict(physics=physics.get_state().copy(), time=physics.data.time, ctrl=physics.data.ctrl.copy(),
                     task=self._env.task.get_state(physics), rng=self._env.random_state.get_state(),
                     needs_reset=self._needs_reset, composer_reset_next=self._env._reset_next_step)
 
@@ -115,6 +115,8 @@ class InsertionEnv(gym.Env):
         self._env.task.set_state(physics, state["task"])
         physics.data.ctrl[:] = state["ctrl"]
         physics.set_state(state["physics"])
+        if "time" in state:  # dm_control's state leaves it out; the task's per-state values are keyed by it
+            physics.data.time = state["time"]
         physics.forward()
         self._env.random_state.set_state(state["rng"])
         self._needs_reset = state["needs_reset"]

@@ -174,6 +174,7 @@ class InsertionTask(composer.Task):
         self._renderer = None
         self.randomization_scale = config.randomization.scale
         self._cache: dict = {}  # per-physics-state values: tactile fields, contact forces, keypoint distance
+        self._observes_contact_forces = bool({"contact_forces", "critic_state"} & set(config.observations))
         self._ids = None
         self._step = 0
         self._prev_action = np.zeros(6)
@@ -321,10 +322,14 @@ class InsertionTask(composer.Task):
     def socket_pos(self, physics) -> np.ndarray:
         return physics.data.mocap_pos[self._ids["socket_mocap"]].copy()
 
+    @staticmethod
+    def _state_key(physics) -> tuple:
+        data = physics.data.ptr  # MuJoCo's own MjData: cheaper attribute access than dm_control's wrapper
+        return data.time, data.qpos.tobytes()
+
     def _per_state(self, name: str, physics, compute):
         """compute(), memoised for the current physics state (several observables and the reward share it)."""
-        data = physics.data.ptr  # MuJoCo's own MjData: cheaper attribute access than dm_control's wrapper
-        key = (data.time, data.qpos.tobytes())
+        key = self._state_key(physics)
         hit = self._cache.get(name)
         if hit is None or hit[0] != key:
             hit = self._cache[name] = (key, compute())
@@ -379,7 +384,9 @@ class InsertionTask(composer.Task):
                     f_ref=self._f_ref.copy(), first_success_step=self.first_success_step,
                     action_delta=self._action_delta, mocap_pos=physics.data.mocap_pos.copy(),
                     pad_solref=physics.model.geom_solref[ids["pad_geoms"]].copy(),
-                    dof_damping=physics.model.dof_damping[ids["hand_dof"]].copy())
+                    dof_damping=physics.model.dof_damping[ids["hand_dof"]].copy(),
+                    # The last substep's solve cannot be recomputed from the state: keep it, with its state key.
+                    contact_forces=self._cache.get("contact_forces"))
 
     def set_state(self, physics, state: dict) -> None:
         """Restore `get_state`; call before setting qpos/qvel and running a forward pass."""
@@ -388,6 +395,8 @@ class InsertionTask(composer.Task):
         physics.model.dof_damping[ids["hand_dof"]] = state["dof_damping"]
         physics.data.mocap_pos[:] = state["mocap_pos"]
         self._cache.clear()
+        if state.get("contact_forces") is not None:  # absent from checkpoints written before it was kept
+            self._cache["contact_forces"] = state["contact_forces"]
         self._step = state["step"]
         self.randomization_scale = state["randomization_scale"]
         self._prev_action = state["prev_action"].copy()
@@ -424,18 +433,42 @@ class InsertionTask(composer.Task):
         return (self.raw_tactile(physics, side) - self._f_ref[side]).astype(np.float32)
 
     def contact_forces(self, physics) -> np.ndarray:
-        """World-frame forces on the peg from the socket, the left pad and the right pad (9,)."""
+        """World-frame forces on the peg from the socket, the left pad and the right pad (9,): those of the
+        control step's last substep (`step_physics`), or, where no substep has run yet, solved for this state."""
         return self._per_state("contact_forces", physics, lambda: self._contact_forces(physics))
 
     def _contact_forces(self, physics) -> np.ndarray:
         d, m = physics.data, physics.model
-        # dm_control ends each step with mj_step1: the contact list is new but efc_force still belongs to
-        # the previous contacts (stale or uninitialised rows). Solve the constraint forces for this state.
+        # The state ends with mj_step1: the contact list is new but efc_force still belongs to the previous
+        # contacts (stale or uninitialised rows). Solve the constraint forces for this state.
         mujoco.mj_forwardSkip(m.ptr, d.ptr, mujoco.mjtStage.mjSTAGE_VEL, 0)
-        con = d.ptr.contact
-        out = _peg_contact_forces(con.geom, con.efc_address, con.dim, con.frame, d.ptr.efc_force,
+        return self._solved_contact_forces(d.ptr)
+
+    def _solved_contact_forces(self, data) -> np.ndarray:
+        """The peg's contact forces from MjData whose contact list and efc_force belong to one solve."""
+        con = data.contact
+        out = _peg_contact_forces(con.geom, con.efc_address, con.dim, con.frame, data.efc_force,
                                   self._peg_geom_mask, self._contact_slot)
         return out.ravel().astype(np.float32)
+
+    def step_physics(self, physics, substeps: int) -> None:
+        """`substeps` physics steps as dm_control's Physics.step takes them (mj_step2 first and mj_step1 last,
+        so positions and velocities stay current; its invalid-state check too), keeping the contact forces of
+        the last substep's constraint solve for the contact-force observation. Those are the forces MuJoCo
+        applied over the last substep, as Isaac Gym reports net contact forces after a step; solving again
+        for the final state would cost a constraint solve per control step (docs/benchmarks.md)."""
+        m, d = physics.model.ptr, physics.data.ptr  # dm_control's path for the arena's (non-RK4) integrator:
+        with physics.check_invalid_state():
+            mujoco.mj_step2(m, d)  # ends the substep whose mj_step1 ended the previous call
+            if substeps > 1:
+                if substeps > 2:
+                    mujoco.mj_step(m, d, substeps - 2)
+                mujoco.mj_step1(m, d)
+                mujoco.mj_step2(m, d)
+            forces = self._solved_contact_forces(d) if self._observes_contact_forces else None
+            mujoco.mj_step1(m, d)
+        if forces is not None:
+            self._cache["contact_forces"] = (self._state_key(physics), forces)
 
     def render_wrist(self, physics) -> np.ndarray:
         """64x64 RGB uint8 (H, W, 3) from one persistent renderer (dm_control rebuilds a scene per frame)."""
@@ -503,14 +536,15 @@ class InsertionTask(composer.Task):
 
 
 class InsertionEnvironment(composer.Environment):
-    """composer's Environment with a leaner control step: the physics substeps in one `physics.step(n)` call and
-    the observation computed once, by the task, after them.
+    """composer's Environment with a leaner control step: the physics substeps in one call (the task's
+    `step_physics`, MuJoCo's own loop) and the observation computed once, by the task, after them.
 
     Between substeps composer calls the substep hooks and the observation updater. This task and its entities
     have no substep hooks, and each observable keeps one value taken after the last substep (no delay, no
-    buffer), so the trajectory and the observations are composer's own bit for bit (tested), without eight
-    Python round trips through composer and dm_control per control step (docs/benchmarks.md). Reset, specs and
-    the step's hooks, reward, discount, time limit and physics-error handling are composer's (dm-control 1.0.50).
+    buffer), so the trajectory and the observations are composer's own bit for bit (tested; the contact
+    forces apart, which this step takes from the last substep's solve), without eight Python round trips
+    through composer and dm_control per control step (docs/benchmarks.md). Reset, specs and the step's hooks,
+    reward, discount, time limit and physics-error handling are composer's (dm-control 1.0.50).
     """
 
     def __init__(self, task: InsertionTask, **kwargs):
@@ -539,7 +573,7 @@ class InsertionEnvironment(composer.Environment):
         physics = self._physics_proxy
         self._hooks.before_step(physics, action, self._random_state)
         try:
-            self._physics.step(self._n_sub_steps)
+            self._task.step_physics(self._physics, self._n_sub_steps)
             diverged = False
         except control.PhysicsError as error:
             if self._raise_exception_on_physics_error:
