@@ -10,9 +10,10 @@ scripted oracle (the peg aligned, pushed into the hole and held there, like a tr
 this one process; physics per control step; per substep, the wall time of MuJoCo and its timers for
 collision (narrow phase apart) and the constraint solve; contacts, constraint rows and solver iterations
 (read after each control step's substeps); and the constraint solve that the contact-force observation
-adds (only where no substep has run: the first observation of an episode), per control step. `--opt NAME=VALUE` (a field of MuJoCo's mjOption) and `--disable FLAG` (an
-mjtDisableBit without its mjDSBL_ prefix) time the same drivers under other solver or collision settings;
-they change the task's physics, so the successes column says whether the policy still copes.
+adds (only where no substep has run: the first observation of an episode), per control step. `--opt
+NAME=VALUE` (a field of MuJoCo's mjOption) and `--disable FLAG` (an mjtDisableBit without its mjDSBL_ prefix)
+time the same drivers under other solver or collision settings; they change the task's physics, so the
+successes column says whether the policy still copes.
 """
 
 from __future__ import annotations

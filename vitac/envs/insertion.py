@@ -457,7 +457,8 @@ class InsertionTask(composer.Task):
         the last substep's constraint solve for the contact-force observation. Those are the forces MuJoCo
         applied over the last substep, as Isaac Gym reports net contact forces after a step; solving again
         for the final state would cost a constraint solve per control step (docs/benchmarks.md)."""
-        m, d = physics.model.ptr, physics.data.ptr  # dm_control's path for the arena's (non-RK4) integrator:
+        # dm_control's path for the arena's (non-RK4) integrator.
+        m, d = physics.model.ptr, physics.data.ptr
         with physics.check_invalid_state():
             mujoco.mj_step2(m, d)  # ends the substep whose mj_step1 ended the previous call
             if substeps > 1:
