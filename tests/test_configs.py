@@ -162,6 +162,17 @@ def test_shaped_cmt_experiment_trains_on_the_reward_of_the_privileged_run_its_cr
     assert (cmt.obs.name, cmt.fusion._target_.rsplit(".", 1)[1], cmt.reg.lambda_sym) == ("wrist_tactile", "CrossModalTransformer", 1.0)
 
 
+def test_32env_cmt_experiment_is_the_32env_privileged_recipe_with_its_rate_capped_at_the_papers():
+    privileged, cmt = (compose_config([f"experiment={name}"])
+                       for name in ("results_privileged_cpu_32envs", "results_cmt_sym_cpu_32envs"))
+    assert cmt.env == privileged.env and cmt.head == privileged.head  # critic_ckpt values the same reward
+    same = ("num_envs", "horizon", "seq_len", "minibatch_size", "mini_epochs", "lr_schedule", "kl_threshold",
+            "lr_schedule_every", "lr_min")
+    assert {key: cmt.algo[key] for key in same} == {key: privileged.algo[key] for key in same}
+    assert cmt.algo.lr == cmt.algo.lr_max == 1e-4 < privileged.algo.lr_max
+    assert (cmt.obs.name, cmt.fusion._target_.rsplit(".", 1)[1], cmt.reg.lambda_sym) == ("wrist_tactile", "CrossModalTransformer", 1.0)
+
+
 @pytest.mark.parametrize("launcher,target", [("joblib_local", "JoblibLauncher"), ("slurm", "SlurmLauncher")])
 def test_launcher_configs_compose(launcher, target):
     from hydra import compose, initialize_config_dir

@@ -109,6 +109,23 @@ def test_adaptive_lr_follows_rl_games_rule_within_bounds():
         make_lr_schedule("adaptive", 0.0)
 
 
+def test_adaptive_lr_bounds_are_configurable_and_every_move_lands_within_them():
+    schedule = make_lr_schedule("adaptive", 0.01, min_lr=1e-5, max_lr=1e-4, lr=1e-4)
+    assert schedule.update(1e-4, 0.0) == 1e-4  # at the cap a small KL cannot raise it
+    assert schedule.update(1.2e-5, 1.0) == 1e-5  # nor a large one lower it past the floor
+    assert schedule.update(5e-5, 0.0) == pytest.approx(7.5e-5)  # within them, rl_games' rule as before
+    # A rate above a cap lowered on resume comes down to the cap at its first move, whatever the KL.
+    assert schedule.update(1e-2, 0.01) == 1e-4 and schedule.update(1e-2, 0.0) == 1e-4
+    with pytest.raises(ValueError, match=r"algo.lr=0.001 is not allowed: expected a number within "
+                                         r"\[algo.lr_min, algo.lr_max\] = \[1e-05, 0.0001\]"):
+        make_lr_schedule("adaptive", 0.01, min_lr=1e-5, max_lr=1e-4, lr=1e-3)
+    with pytest.raises(ValueError, match=r"algo.lr_max=1e-06 is not allowed: expected a number >= algo.lr_min=1e-05"):
+        make_lr_schedule("fixed", 0.01, min_lr=1e-5, max_lr=1e-6)  # refused even while the rate is fixed
+    with pytest.raises(ValueError, match=r"algo.lr_min=0 is not allowed: expected a number > 0"):
+        make_lr_schedule("adaptive", 0.01, min_lr=0, max_lr=1e-2)
+    assert make_lr_schedule("fixed", 0.01, lr=1.0) is None  # a fixed rate is not held to the bounds
+
+
 def test_adaptive_lr_moves_at_its_boundary_on_the_mean_kl_since_it_last_moved():
     kls = [0.001, 0.05, 0.001, 0.001]  # two mini-epochs of two minibatches; threshold 0.01: 0.005 < ok < 0.02
 

@@ -420,6 +420,9 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
     ("algo.num_workers=3", r"algo\.num_workers=3 is not allowed: expected 0 or a divisor of algo\.num_envs=2"),
     ("algo.normalize_input=maybe", r"algo\.normalize_input='maybe' is not allowed: expected true or false"),
     ("algo.horizon=12", r"algo\.horizon=12 is not allowed: expected a multiple of algo\.seq_len"),
+    ("algo.lr_min=0", r"algo\.lr_min=0 is not allowed: expected a number > 0"),
+    ("algo.lr_schedule=adaptive algo.lr_max=1e-5", r"algo\.lr=0\.0001 is not allowed: expected a number within "
+                                                   r"\[algo\.lr_min, algo\.lr_max\] = \[1e-06, 1e-05\]"),
     ("seed=abc", r"seed='abc' is not allowed: expected an integer or null"),
     ("trainer.update_threads=0", r"trainer\.update_threads=0 is not allowed: expected a positive integer"),
     ("trainer.deterministic=maybe", r"trainer\.deterministic='maybe' is not allowed: expected true or false"),
@@ -428,7 +431,7 @@ def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path,
     monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
     monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(ValueError, match=pattern):
-        train(compose_config(SMOKE + [override], output_dir=tmp_path / "x"))
+        train(compose_config(SMOKE + override.split(), output_dir=tmp_path / "x"))
     assert not (tmp_path / "x").exists()  # nor a run directory left behind
 
 
@@ -461,7 +464,7 @@ def test_resume_that_cannot_continue_exactly_is_refused_before_any_environment_i
 def test_every_algo_key_has_its_check():
     from vitac.rl import hyperparameters as h
 
-    by_components = {"lr_schedule", "kl_threshold", "lr_schedule_every", "curriculum"}  # their constructors
+    by_components = {"lr_schedule", "kl_threshold", "lr_schedule_every", "lr_min", "lr_max", "curriculum"}  # their constructors
     checked = (set(h.POSITIVE_INTS + h.POSITIVE_NUMBERS + h.NON_NEGATIVE_NUMBERS + h.FRACTIONS + h.FLAGS)
                | {"num_envs", "num_workers", "eval_video_every"} | by_components)
     assert set(compose_config([]).algo) == checked

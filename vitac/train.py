@@ -98,6 +98,12 @@ def train(cfg: DictConfig) -> dict:
     check_seed(cfg.seed)
     algo = OmegaConf.to_container(cfg.algo, resolve=True)  # the PPO module's keyword arguments, popped below
     check_algo(algo)
+    lr_schedule = make_lr_schedule(algo.pop("lr_schedule"), algo.pop("kl_threshold"), algo.pop("lr_schedule_every"),
+                                   algo.pop("lr_min"), algo.pop("lr_max"), algo["lr"])
+    curriculum_settings = algo.pop("curriculum")
+    curriculum = None
+    if curriculum_settings.pop("enabled"):
+        curriculum = RandomizationCurriculum(**curriculum_settings)
     settings = env_settings(cfg)
     env_config = InsertionConfig.from_dict(settings)
     accelerator = check_accelerator(cfg.trainer.accelerator)
@@ -120,11 +126,6 @@ def train(cfg: DictConfig) -> dict:
     num_envs, num_workers, step_in_main = algo.pop("num_envs"), algo.pop("num_workers"), algo.pop("step_in_main")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every, video_every = algo.pop("save_every"), algo.pop("eval_video_every")
-    lr_schedule = make_lr_schedule(algo.pop("lr_schedule"), algo.pop("kl_threshold"), algo.pop("lr_schedule_every"))
-    curriculum_settings = algo.pop("curriculum")
-    curriculum = None
-    if curriculum_settings.pop("enabled"):
-        curriculum = RandomizationCurriculum(**curriculum_settings)
     checkpoints = ModelCheckpoint(dirpath=out / "checkpoints", filename="iter{epoch:04d}", save_last=True,
                                   every_n_epochs=save_every, save_top_k=-1)
     best = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",

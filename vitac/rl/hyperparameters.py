@@ -5,16 +5,8 @@ before simulating. `vitac.evaluate` checks its own keys with the same helpers (`
 
 from __future__ import annotations
 
-import math
-import numbers
-
 from vitac.rl.buffer import check_batch_layout
-from vitac.utils.checks import check_flag, check_groups, check_int, is_int, refuse
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
-
+from vitac.utils.checks import check_flag, check_groups, check_int, is_int, is_number, refuse
 
 POSITIVE_INTS = ("horizon", "seq_len", "minibatch_size", "mini_epochs", "iterations", "eval_every",
                  "eval_episodes", "save_every")
@@ -31,13 +23,13 @@ def check_algo(algo: dict) -> None:
         check_int(f"algo.{name}", algo[name], 1)
     check_int("algo.eval_video_every", algo["eval_video_every"], 0)
     for name in POSITIVE_NUMBERS:
-        if not _is_number(algo[name]) or not algo[name] > 0:
+        if not is_number(algo[name]) or not algo[name] > 0:
             refuse(f"algo.{name}", algo[name], "a number > 0")
     for name in NON_NEGATIVE_NUMBERS:
-        if not _is_number(algo[name]) or algo[name] < 0:
+        if not is_number(algo[name]) or algo[name] < 0:
             refuse(f"algo.{name}", algo[name], "a number >= 0")
     for name in FRACTIONS:
-        if not _is_number(algo[name]) or not 0 <= algo[name] <= 1:
+        if not is_number(algo[name]) or not 0 <= algo[name] <= 1:
             refuse(f"algo.{name}", algo[name], "a number in [0, 1]")
     for name in FLAGS:
         check_flag(f"algo.{name}", algo[name])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from vitac.utils.checks import is_number, refuse
+
 LR_SCHEDULES = ("fixed", "adaptive")
 # When the adaptive rate moves, and on which KL: rl_games' schedule_type legacy, standard and standard_epoch.
 LR_SCHEDULE_EVERY = ("minibatch", "mini_epoch", "iteration")
@@ -19,7 +21,9 @@ class AdaptiveKLSchedule:
             `legacy`), after each mini-epoch on the mean KL of its minibatches (`standard`), or once per
             iteration on the mean over all of them (`standard_epoch`). The means move the rate less often and
             on less noisy KLs.
-        min_lr, max_lr: bounds of the learning rate (rl_games' defaults).
+        min_lr, max_lr: bounds of the learning rate (rl_games' defaults 1e-6 and 1e-2; `algo.lr_min`,
+            `algo.lr_max`). Every move lands within them, so a rate restored from a checkpoint above a lowered
+            cap comes down to it at the first move.
         factor: the multiplicative step.
     """
 
@@ -28,6 +32,7 @@ class AdaptiveKLSchedule:
         if not kl_threshold > 0.0:
             raise ValueError(f"algo.kl_threshold={kl_threshold!r} is not allowed: expected a positive number")
         check_every(every)
+        check_bounds(min_lr, max_lr)
         self.kl_threshold, self.min_lr, self.max_lr, self.factor = float(kl_threshold), min_lr, max_lr, factor
         self.every = every
         self._kls: list[float] = []  # since the rate last moved; always emptied within one iteration
@@ -53,10 +58,10 @@ class AdaptiveKLSchedule:
     def update(self, lr: float, kl: float) -> float:
         """rl_games' rule: the next learning rate, given the current one and a KL."""
         if kl > 2.0 * self.kl_threshold:
-            return max(lr / self.factor, self.min_lr)
-        if kl < 0.5 * self.kl_threshold:
-            return min(lr * self.factor, self.max_lr)
-        return lr
+            lr = lr / self.factor
+        elif kl < 0.5 * self.kl_threshold:
+            lr = lr * self.factor
+        return min(max(lr, self.min_lr), self.max_lr)
 
 
 def check_every(every: str) -> str:
@@ -65,11 +70,26 @@ def check_every(every: str) -> str:
     return every
 
 
-def make_lr_schedule(name: str, kl_threshold: float, every: str = "minibatch") -> AdaptiveKLSchedule | None:
-    """`algo.lr_schedule` -> a schedule (None: the learning rate stays fixed), checked before any simulation."""
+def check_bounds(min_lr, max_lr) -> None:
+    for key, value in (("algo.lr_min", min_lr), ("algo.lr_max", max_lr)):
+        if not is_number(value) or not value > 0:
+            refuse(key, value, "a number > 0")
+    if not min_lr <= max_lr:
+        refuse("algo.lr_max", max_lr, f"a number >= algo.lr_min={min_lr!r}")
+
+
+def make_lr_schedule(name: str, kl_threshold: float, every: str = "minibatch", min_lr: float = 1e-6,
+                     max_lr: float = 1e-2, lr: float | None = None) -> AdaptiveKLSchedule | None:
+    """`algo.lr_schedule` -> a schedule (None: the learning rate stays fixed), checked before any simulation.
+    With the adaptive schedule the starting rate `lr` (`algo.lr`) must lie within its bounds."""
     if name not in LR_SCHEDULES:
         raise ValueError(f"algo.lr_schedule={name!r} is not allowed: expected one of {', '.join(LR_SCHEDULES)}")
     if name == "adaptive":
-        return AdaptiveKLSchedule(kl_threshold, every)
-    check_every(every)  # a typo is refused even while the rate is fixed
+        schedule = AdaptiveKLSchedule(kl_threshold, every, min_lr, max_lr)
+        if lr is not None and not min_lr <= lr <= max_lr:
+            refuse("algo.lr", lr, f"a number within [algo.lr_min, algo.lr_max] = [{min_lr!r}, {max_lr!r}] "
+                                  "with algo.lr_schedule=adaptive")
+        return schedule
+    check_every(every)  # typos are refused even while the rate is fixed
+    check_bounds(min_lr, max_lr)
     return None
