@@ -22,7 +22,7 @@ from vitac.evaluate import evaluate, load_policy
 from vitac.models.normalizer import RunningNormalizer
 from vitac.train import build_policy_from_config, env_settings, load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
-from vitac.utils.records import write_json, write_record
+from vitac.utils.records import describe_cpu, write_json, write_record
 
 ROOT = Path(CONF).parent
 SMOKE = ["preset=smoke", "obs=wrist_tactile", "fusion=cmt", "reg=sym"]
@@ -202,10 +202,22 @@ def _tool(name: str):
 
 def test_benchmark_records_carry_the_command_that_reproduces_them(tmp_path, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["/somewhere/tools/bench_train.py", "--only", "privileged", "algo.lr=1e-5"])
+    monkeypatch.setattr("vitac.utils.records.describe_cpu", lambda: {"model": "some CPU", "cores": 2, "bfloat16": []})
     write_record(tmp_path / "new" / "record.json", rows=[{"env_steps_per_s": 1.0}], threads=2)
     assert json.loads((tmp_path / "new" / "record.json").read_text()) == {
         "rows": [{"env_steps_per_s": 1.0}], "threads": 2,
-        "command": "python tools/bench_train.py --only privileged algo.lr=1e-5"}
+        "command": "python tools/bench_train.py --only privileged algo.lr=1e-5",
+        "cpu": {"model": "some CPU", "cores": 2, "bfloat16": []}}
+
+
+def test_records_name_the_cpu_they_were_measured_on(tmp_path):
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nmodel name\t: Intel(R) Xeon(R) Processor\n"
+                       "flags\t\t: fpu avx512f avx512_bf16 amx_tile amx_bf16\n\nprocessor\t: 1\n")
+    cpu = describe_cpu(cpuinfo)
+    assert cpu["model"] == "Intel(R) Xeon(R) Processor" and cpu["bfloat16"] == ["amx_bf16", "avx512_bf16"]
+    assert cpu["cores"] == len(os.sched_getaffinity(0))
+    assert describe_cpu(tmp_path / "missing")["bfloat16"] == []  # no /proc/cpuinfo: still a record
 
 
 def test_a_json_record_replaces_its_file_only_once_written_whole(tmp_path, monkeypatch):

@@ -10,7 +10,6 @@ batch-1 forward (torch.profiler on CPU, max_memory_allocated on CUDA). CUDA rows
 from __future__ import annotations
 
 import argparse
-import platform
 import time
 from pathlib import Path
 
@@ -119,8 +118,7 @@ def main():
               f"{r['memory_mb']:.2f} ({r['weights_mb']:.2f} weights + {r['peak_forward_mb']:.2f} forward) | "
               f"{r['paper_latency_ms']} / {r['paper_memory_mb']} / {r['paper_fps']} |")
     if args.json:
-        meta = dict(threads=args.threads, passes=args.passes, torch=torch.__version__, machine=platform.machine(),
-                    processor=platform.processor())
+        meta = dict(threads=args.threads, passes=args.passes, torch=torch.__version__)
         write_record(args.json, meta=meta, rows=rows)
 
 

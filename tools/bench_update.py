@@ -16,7 +16,6 @@ would allow if every convolution ran at that rate, against the rate `--target` e
 from __future__ import annotations
 
 import argparse
-import platform
 import time
 from pathlib import Path
 
@@ -121,7 +120,7 @@ def main():
             time_minibatch(policy, optimizer, obs, starts, repeats=1)
         print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=8))
     if args.json:
-        write_record(args.json, machine=platform.processor() or platform.machine(), threads=args.threads,
+        write_record(args.json, threads=args.threads,
                      minibatch=args.minibatch, seq_len=args.seq_len, mini_epochs=args.mini_epochs,
                      wrist_conv_macs=wrist, tactile_conv_macs=tactile, flop_per_env_step=flop_per_env_step,
                      target_env_steps_per_s=args.target, gflop_per_s_needed_for_target=needed, rows=rows)

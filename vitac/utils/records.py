@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import platform
 import sys
 import tempfile
 from pathlib import Path
@@ -30,10 +31,28 @@ def write_json(path: Path, data) -> None:
         raise
 
 
+def describe_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
+    """The CPU a record was measured on: its model, the cores this process may use, and its bfloat16 extensions
+    (AVX-512 BF16, AMX), which decide how fast the image policy's convolutions run. Machines of one kind differ."""
+    model, flags = platform.processor() or platform.machine(), set()
+    try:
+        for line in cpuinfo.read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name":
+                model = value.strip()
+            elif key.strip() == "flags":
+                flags = set(value.split())
+    except OSError:  # not Linux: the model from platform, no flags
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return dict(model=model, cores=cores, bfloat16=sorted(flags & {"avx512_bf16", "amx_bf16"}))
+
+
 def write_record(path: Path, **fields) -> None:
-    """Write `fields` plus `command` (this process's command line, as a tool in tools/ is run) to `path`."""
+    """Write `fields` plus `command` (this process's command line, as a tool in tools/ is run) and `cpu`
+    (describe_cpu) to `path`."""
     command = " ".join([f"python tools/{Path(sys.argv[0]).name}", *sys.argv[1:]])
-    write_json(path, dict(fields, command=command))
+    write_json(path, dict(fields, command=command, cpu=describe_cpu()))
 
 
 def read_whole(path: Path, parse, what: str = "", hint: str = ""):
