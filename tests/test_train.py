@@ -22,6 +22,7 @@ from vitac.evaluate import evaluate, load_policy
 from vitac.models.normalizer import RunningNormalizer
 from vitac.train import build_policy_from_config, env_settings, load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.checks import resolve_groups, resolve_threads
 from vitac.utils.records import describe_cpu, write_json, write_record
 
 ROOT = Path(CONF).parent
@@ -72,6 +73,12 @@ def test_killed_run_resumes_to_the_same_metrics(tmp_path):
     assert resumed_reward == full_reward
     # Weights and optimizer resume; CPU conv kernels are reproducible across processes only to ~1e-6.
     assert [float(x) for x in resumed_losses] == pytest.approx([float(x) for x in full_losses], rel=1e-4, abs=1e-9)
+    # The environments split over other processes (here a worker each instead of the main process alone) resume too.
+    split = train(compose_config(SMOKE + ["algo.iterations=3", "algo.num_workers=2", f"resume={tmp_path / 'part'}"],
+                                 output_dir=tmp_path / "split"))
+    (s_epoch, *split_losses, split_reward), = _losses(split)
+    assert (s_epoch, split_reward) == (epoch, full_reward)
+    assert [float(x) for x in split_losses] == pytest.approx([float(x) for x in full_losses], rel=1e-4, abs=1e-9)
 
 
 def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continues_from_it(tmp_path):
@@ -436,7 +443,8 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
     ("algo.lr_schedule=adaptive algo.lr_max=1e-5", r"algo\.lr=0\.0001 is not allowed: expected a number within "
                                                    r"\[algo\.lr_min, algo\.lr_max\] = \[1e-06, 1e-05\]"),
     ("seed=abc", r"seed='abc' is not allowed: expected an integer or null"),
-    ("trainer.update_threads=0", r"trainer\.update_threads=0 is not allowed: expected a positive integer"),
+    ("trainer.update_threads=0", r"trainer\.update_threads=0 is not allowed: expected a positive integer or auto"),
+    ("algo.num_workers=many", r"algo\.num_workers='many' is not allowed: expected an integer >= 0 or auto"),
     ("trainer.deterministic=maybe", r"trainer\.deterministic='maybe' is not allowed: expected true or false"),
 ])
 def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
@@ -445,6 +453,35 @@ def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path,
     with pytest.raises(ValueError, match=pattern):
         train(compose_config(SMOKE + override.split(), output_dir=tmp_path / "x"))
     assert not (tmp_path / "x").exists()  # nor a run directory left behind
+
+
+@pytest.mark.parametrize("envs,cores,groups", [(32, 16, 16), (32, 12, 8), (24, 16, 12), (16, 2, 2), (16, 1, 1),
+                                               (7, 4, 1), (2, 64, 2)])
+def test_auto_workers_take_the_largest_divisor_of_the_envs_within_the_usable_cores(monkeypatch, envs, cores, groups):
+    monkeypatch.setattr("vitac.utils.checks.usable_cores", lambda: cores)
+    assert resolve_groups(envs, "auto") == groups
+    assert resolve_groups(envs, 0) == 0  # a number is kept as given
+    assert resolve_threads("trainer.update_threads", "auto") == cores
+
+
+def test_train_and_evaluate_run_their_environments_in_the_auto_groups(tmp_path, monkeypatch):
+    smoke = ["preset=smoke", "obs=privileged"]
+    ckpt = train(compose_config(smoke, output_dir=tmp_path / "run"))["checkpoint"]
+    monkeypatch.setattr("vitac.utils.checks.usable_cores", lambda: 3)
+    built = []
+
+    def capture(*args, **kwargs):  # stop at the environments: the split is what this test checks
+        built.append(kwargs["num_workers"])
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr("vitac.train.InsertionVectorEnv", capture)
+    monkeypatch.setattr("vitac.evaluate.InsertionVectorEnv", capture)
+    with pytest.raises(RuntimeError, match="stop"):
+        train(compose_config(smoke + ["algo.num_envs=6", "algo.num_workers=auto", "trainer.update_threads=auto"],
+                             output_dir=tmp_path / "auto"))
+    with pytest.raises(RuntimeError, match="stop"):
+        evaluate(ckpt, episodes=4, num_envs=4, num_workers="auto", seed=0)
+    assert built == [3, 2]
 
 
 @pytest.mark.parametrize("arguments,pattern", [

@@ -21,7 +21,7 @@ from vitac.envs.vector_env import InsertionVectorEnv
 from vitac.rl.evaluation import run_episodes
 from vitac.train import build_policy_from_config, env_settings
 from vitac.utils.checkpoint import load_checkpoint
-from vitac.utils.checks import check_flag, check_groups, check_int
+from vitac.utils.checks import check_flag, check_int, resolve_groups
 from vitac.utils.records import write_json
 
 log = logging.getLogger(__name__)
@@ -38,7 +38,7 @@ def load_policy(ckpt: str | Path):
     return policy, cfg, settings
 
 
-def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: int, out: str | None = None,
+def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, seed: int, out: str | None = None,
              randomization_scale: float | None = None, deterministic: bool = True,
              socket_obs_noise: float | None = None, randomize_only: list | None = None,
              step_in_main: bool = True) -> dict:
@@ -47,7 +47,7 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int, seed: in
     curriculum reached) or `socket_obs_noise` replaces the socket observation noise (0: what the noise costs);
     `randomize_only` (names from RANDOMIZED_FACTORS) randomizes those factors alone, every other at its midpoint."""
     check_int("episodes", episodes, 1)
-    check_groups(num_envs, num_workers, prefix="")
+    num_workers = resolve_groups(num_envs, num_workers, prefix="")
     check_int("seed", seed, 0)
     check_flag("deterministic", deterministic)
     check_flag("step_in_main", step_in_main)

@@ -20,10 +20,11 @@ from vitac.models.build import build_policy
 from vitac.models.policy import IMAGE_ROLES, VECTOR_KEYS
 from vitac.rl.callbacks import CheckpointOnTermination, EvaluationCallback, IterationProgressBar
 from vitac.rl.curriculum import RandomizationCurriculum
-from vitac.rl.hyperparameters import check_algo, check_seed, check_trainer_threads
+from vitac.rl.hyperparameters import check_algo, check_seed, resolve_trainer_threads
 from vitac.rl.lr_schedule import make_lr_schedule
 from vitac.rl.ppo import PPO
 from vitac.utils.checkpoint import PortableCheckpointIO, load_checkpoint
+from vitac.utils.checks import resolve_groups
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 
 log = logging.getLogger(__name__)
@@ -97,6 +98,7 @@ def train(cfg: DictConfig) -> dict:
     # Everything that can be checked without simulating is checked first.
     check_seed(cfg.seed)
     algo = OmegaConf.to_container(cfg.algo, resolve=True)  # the PPO module's keyword arguments, popped below
+    algo["num_workers"] = resolve_groups(algo["num_envs"], algo["num_workers"])
     check_algo(algo)
     lr_schedule = make_lr_schedule(algo.pop("lr_schedule"), algo.pop("kl_threshold"), algo.pop("lr_schedule_every"),
                                    algo.pop("lr_min"), algo.pop("lr_max"), algo["lr"])
@@ -107,7 +109,8 @@ def train(cfg: DictConfig) -> dict:
     settings = env_settings(cfg)
     env_config = InsertionConfig.from_dict(settings)
     accelerator = check_accelerator(cfg.trainer.accelerator)
-    check_trainer_threads(cfg.trainer.rollout_threads, cfg.trainer.update_threads, cfg.trainer.deterministic)
+    rollout_threads, update_threads = resolve_trainer_threads(cfg.trainer.rollout_threads, cfg.trainer.update_threads,
+                                                              cfg.trainer.deterministic)
     out = output_dir(cfg)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.seed is not None:  # before any weights are initialised
@@ -153,7 +156,7 @@ def train(cfg: DictConfig) -> dict:
              max(num_workers, 1), step_in_main or not num_workers, settings["observations"])
     try:
         module = PPO(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
-                     rollout_threads=cfg.trainer.rollout_threads, update_threads=cfg.trainer.update_threads,
+                     rollout_threads=rollout_threads, update_threads=update_threads,
                      run_config=resolved, curriculum=curriculum, lr_schedule=lr_schedule, **algo)
         if cfg.init_ckpt:
             load_weights(module, cfg.init_ckpt, list(cfg.init_exclude))

@@ -6,7 +6,7 @@ before simulating. `vitac.evaluate` checks its own keys with the same helpers (`
 from __future__ import annotations
 
 from vitac.rl.buffer import check_batch_layout
-from vitac.utils.checks import check_flag, check_groups, check_int, is_int, is_number, refuse
+from vitac.utils.checks import check_flag, check_groups, check_int, is_int, is_number, refuse, resolve_threads
 
 POSITIVE_INTS = ("horizon", "seq_len", "minibatch_size", "mini_epochs", "iterations", "eval_every",
                  "eval_episodes", "save_every")
@@ -42,7 +42,8 @@ def check_seed(seed) -> None:
         refuse("seed", seed, "an integer or null")
 
 
-def check_trainer_threads(rollout_threads, update_threads, deterministic) -> None:
-    check_int("trainer.rollout_threads", rollout_threads, 1)
-    check_int("trainer.update_threads", update_threads, 1)
+def resolve_trainer_threads(rollout_threads, update_threads, deterministic) -> tuple[int, int]:
+    """The rollout and update thread counts, `auto` resolved to the usable cores."""
     check_flag("trainer.deterministic", deterministic)
+    return (resolve_threads("trainer.rollout_threads", rollout_threads),
+            resolve_threads("trainer.update_threads", update_threads))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 
 
 class ConfigError(ValueError):
@@ -32,9 +33,35 @@ def check_flag(key: str, value) -> None:
         refuse(key, value, "true or false")
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its affinity, which a container or `taskset` narrows)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def check_groups(num_envs: int, num_workers: int, prefix: str = "algo.") -> None:
     """Environments split into equal worker groups."""
     check_int(f"{prefix}num_envs", num_envs, 1)
-    check_int(f"{prefix}num_workers", num_workers, 0)
+    if not is_int(num_workers) or num_workers < 0:
+        refuse(f"{prefix}num_workers", num_workers, "an integer >= 0 or auto")
     if num_workers and num_envs % num_workers:
         refuse(f"{prefix}num_workers", num_workers, f"0 or a divisor of {prefix}num_envs={num_envs}")
+
+
+def resolve_groups(num_envs: int, num_workers, prefix: str = "algo.") -> int:
+    """`num_workers` checked, or for `auto` the most environment groups the usable cores step at once: the
+    largest divisor of `num_envs` not above them (the same trajectories for any split; only the speed differs)."""
+    if num_workers == "auto":
+        check_int(f"{prefix}num_envs", num_envs, 1)
+        cores = usable_cores()
+        num_workers = max(d for d in range(1, min(num_envs, cores) + 1) if num_envs % d == 0)
+    check_groups(num_envs, num_workers, prefix)
+    return num_workers
+
+
+def resolve_threads(key: str, threads) -> int:
+    """A torch thread count checked, or for `auto` the usable cores."""
+    if threads == "auto":
+        return usable_cores()
+    if not is_int(threads) or threads < 1:
+        refuse(key, threads, "a positive integer or auto")
+    return threads

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import yaml
 
+from vitac.utils.checks import usable_cores
+
 
 def write_json(path: Path, data) -> None:
     """Write `data` as indented JSON to `path` through a temporary file beside it, renamed over `path` at the end:
@@ -44,8 +46,7 @@ def describe_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
                 flags = set(value.split())
     except OSError:  # not Linux: the model from platform, no flags
         pass
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return dict(model=model, cores=cores, bfloat16=sorted(flags & {"avx512_bf16", "amx_bf16"}))
+    return dict(model=model, cores=usable_cores(), bfloat16=sorted(flags & {"avx512_bf16", "amx_bf16"}))
 
 
 def write_record(path: Path, **fields) -> None:
