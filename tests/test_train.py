@@ -104,6 +104,22 @@ def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continu
     assert epoch == str(done) and reward == [row for row in _losses(full) if row[0] == epoch][0][-1]
 
 
+def test_sigterm_to_an_image_run_closes_its_evaluation_renderers_before_exit(tmp_path):
+    # Its evaluation environments render in the main process; left open, each one's renderer was freed after
+    # EGL had shut down at exit and printed an EGL_NOT_INITIALIZED traceback.
+    args = [*SMOKE, "algo.eval_every=1", "algo.eval_video_every=0", "algo.save_every=1000", "logger=csv",
+            "algo.iterations=500", f"hydra.run.dir={tmp_path / 'run'}"]
+    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args], cwd=ROOT, stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, start_new_session=True)
+    progress = ""
+    while "| 2/500" not in progress and proc.poll() is None:  # two evaluations done
+        progress += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    os.killpg(proc.pid, signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert "vitac: stopped by SIGTERM" in stdout
+    assert "Exception ignored" not in progress + stderr and "EGL_NOT_INITIALIZED" not in progress + stderr
+
+
 def test_resuming_without_the_curriculum_restores_the_configured_ranges(tmp_path):
     base = ["preset=smoke", "obs=privileged", "algo.curriculum.enabled=true", "algo.curriculum.start=0.0"]
     train(compose_config(base + ["algo.iterations=1"], output_dir=tmp_path / "part"))

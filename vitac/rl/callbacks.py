@@ -61,6 +61,12 @@ class EvaluationCallback(L.Callback):
     def teardown(self, trainer, module, stage):
         if self.envs is not None:
             self.envs.close()
+            self.envs = None
+
+    def on_exception(self, trainer, module, exception):
+        # A run stopped by SIGTERM or an error skips teardown; unclosed renderers would be freed after EGL has
+        # shut down at exit, each printing an EGL_NOT_INITIALIZED traceback.
+        self.teardown(trainer, module, "fit")
 
 
 class CheckpointOnTermination(L.Callback):
