@@ -14,9 +14,9 @@ from lightning.pytorch.utilities import move_data_to_device
 from tests.conftest import compose_config
 from tests.test_recurrent_ppo import FakeVectorEnv, _policy
 from tests.test_train import ROOT, SMOKE, _rows
-from vitac.envs.config import InsertionConfig, observation_shapes
 from vitac.evaluate import evaluate, load_policy
 from vitac.rl.ppo import PPO
+from vitac.tasks.insertion.config import InsertionConfig
 from vitac.train import train
 from vitac.viz import policy_actor
 
@@ -69,7 +69,7 @@ def test_cuda_run_trains_evaluates_and_resumes_on_a_machine_without_cuda(tmp_pat
     assert report["episodes"] == 2
     # Videos record with a GPU policy too: the deterministic actor returns the CPU policy's action.
     policy, _, _ = load_policy(run["checkpoint"])
-    shapes, rng = observation_shapes(InsertionConfig()), np.random.default_rng(0)
+    shapes, rng = InsertionConfig().observation_shapes(), np.random.default_rng(0)
     obs = {k: rng.integers(0, 255, shapes[k], dtype=np.uint8) if k == "wrist" else rng.random(shapes[k], dtype=np.float32)
            for k in policy.image_keys + policy.vector_keys + ["critic_state"]}
     expected = policy_actor(policy)(obs)

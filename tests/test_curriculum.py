@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vitac.envs.gym_env import InsertionEnv
+from vitac.envs.gym_env import TaskEnv
 from vitac.rl.curriculum import RandomizationCurriculum
 
 
@@ -27,7 +27,7 @@ def test_bad_curriculum_values_are_refused():
 
 
 def test_scale_zero_starts_every_episode_at_the_midpoints_and_one_restores_the_ranges():
-    env = InsertionEnv({"observations": ["proprio", "peg_state"]}, seed=0)
+    env = TaskEnv({"observations": ["proprio", "peg_state"]}, seed=0)
     env.set_randomization_scale(0.0)
     a, _ = env.reset(seed=1)
     b, _ = env.reset(seed=2)

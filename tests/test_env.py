@@ -9,16 +9,16 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
-from vitac.envs.config import InsertionConfig, Randomization
-from vitac.envs.gym_env import InsertionEnv
-from vitac.envs.vector_env import InsertionVectorEnv
+from vitac.envs.gym_env import TaskEnv
+from vitac.envs.vector_env import TaskVectorEnv
+from vitac.tasks.insertion.config import InsertionConfig, Randomization
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
 
 
 @pytest.fixture(scope="module")
 def env():
-    e = InsertionEnv({"observations": ALL}, seed=0)
+    e = TaskEnv({"observations": ALL}, seed=0)
     yield e
     e.close()
 
@@ -52,7 +52,7 @@ def test_vector_observations_end_with_their_offset_to_the_socket(env):
 def test_reset_keeps_the_compiled_model():
     # The task randomizes model fields in place and never edits the MJCF: recompiling it at each reset
     # (composer's default) would only cost ~25 ms an episode.
-    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
     e.reset(seed=0)
     model = e.physics.model.ptr
     e.reset(seed=1)
@@ -84,7 +84,7 @@ def test_grasp_holds_and_residual_field_starts_near_zero(env):
 def test_centred_symmetric_squeeze_right_flipped_equals_left():
     cfg = {"observations": ["proprio"], "randomization": {"enabled": True, "peg_in_hand_tilt": [0.0, 0.0],
                                                           "ee_rot_low": [0, 0, 0], "ee_rot_high": [0, 0, 0]}}
-    e = InsertionEnv(cfg, seed=0)
+    e = TaskEnv(cfg, seed=0)
     e.reset(seed=4)
     left, right = e.task.raw_tactile(e.physics, 0), e.task.raw_tactile(e.physics, 1)
     e.close()
@@ -93,7 +93,7 @@ def test_centred_symmetric_squeeze_right_flipped_equals_left():
 
 
 def test_same_seed_same_episode():
-    a, b = InsertionEnv({"observations": ["proprio"]}, seed=0), InsertionEnv({"observations": ["proprio"]}, seed=0)
+    a, b = TaskEnv({"observations": ["proprio"]}, seed=0), TaskEnv({"observations": ["proprio"]}, seed=0)
     oa, _ = a.reset(seed=11)
     ob, _ = b.reset(seed=11)
     rng = np.random.default_rng(0)
@@ -110,12 +110,13 @@ def test_same_seed_same_episode():
 def test_lean_control_step_gives_composers_trajectory_and_observations_bit_for_bit():
     from dm_control import composer
 
-    from vitac.envs.insertion import InsertionEnvironment, InsertionTask
+    from vitac.sim.environment import LeanEnvironment
+    from vitac.tasks.insertion.task import InsertionTask
 
     settings = InsertionConfig.from_dict({"observations": ["proprio", "critic_state"]})
     kwargs = dict(random_state=3, time_limit=float("inf"), strip_singleton_obs_buffer_dim=True,
                   raise_exception_on_physics_error=False, recompile_mjcf_every_episode=False)
-    ours, composers = (cls(InsertionTask(settings), **kwargs) for cls in (InsertionEnvironment, composer.Environment))
+    ours, composers = (cls(InsertionTask(settings), **kwargs) for cls in (LeanEnvironment, composer.Environment))
     rng = np.random.default_rng(0)
     ours.reset()
     composers.reset()
@@ -136,22 +137,23 @@ def test_lean_control_step_gives_composers_trajectory_and_observations_bit_for_b
 
 
 def test_lean_control_step_refuses_substep_hooks_and_buffered_observables():
-    from vitac.envs.insertion import InsertionEnvironment, InsertionTask
+    from vitac.sim.environment import LeanEnvironment
+    from vitac.tasks.insertion.task import InsertionTask
 
-    env = InsertionEnvironment(InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]})))
+    env = LeanEnvironment(InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]})))
     with pytest.raises(ValueError, match="hook_name='after_substep' is not allowed"):
         env.add_extra_hook("after_substep", lambda physics, random_state: None)
     env.close()
     task = InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]}))
     task.observables["proprio"].buffer_size = 3
     with pytest.raises(ValueError, match=r"buffer, delay or transform observables \['proprio'\]"):
-        InsertionEnvironment(task)
+        LeanEnvironment(task)
 
 
 def test_rotation_helpers_match_scipy_and_an_action_turns_the_hand_about_world_axes():
     from scipy.spatial.transform import Rotation
 
-    from vitac.envs.insertion import _DOWN, axis_angle_matrix, euler_zyx_from_matrix, matrix_from_euler_zyx
+    from vitac.sim.poses import DOWN, axis_angle_matrix, euler_zyx_from_matrix, matrix_from_euler_zyx
 
     rng = np.random.default_rng(0)
     for _ in range(50):
@@ -161,22 +163,22 @@ def test_rotation_helpers_match_scipy_and_an_action_turns_the_hand_about_world_a
         np.testing.assert_allclose(matrix, Rotation.from_euler("ZYX", euler).as_matrix(), atol=1e-12)
         np.testing.assert_allclose(euler_zyx_from_matrix(matrix), euler, atol=1e-12)
     # The rotation part of an action is an axis-angle delta in the world frame applied to the hand's orientation.
-    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
     e.reset(seed=4)
     task, physics = e.task, e.physics
     action = np.array([0.0, 0.0, 0.0, 0.7, -0.4, 0.9])
     hinges = physics.data.qpos[task._ids["hand_qpos"]][3:].copy()
     task.before_step(physics, action, None)
     target = physics.data.ctrl[task._ids["hand_act"]][3:]
-    expected = axis_angle_matrix(action[3:] * task.config.rot_action_scale) @ _DOWN @ matrix_from_euler_zyx(*hinges)
-    np.testing.assert_allclose(_DOWN @ matrix_from_euler_zyx(*target), expected, atol=1e-12)
+    expected = axis_angle_matrix(action[3:] * task.config.rot_action_scale) @ DOWN @ matrix_from_euler_zyx(*hinges)
+    np.testing.assert_allclose(DOWN @ matrix_from_euler_zyx(*target), expected, atol=1e-12)
     e.close()
 
 
 def test_keypoint_distance_is_the_mean_distance_between_matching_keypoints():
     from scipy.spatial.transform import Rotation
 
-    from vitac.envs.insertion import keypoint_offsets, mean_keypoint_distance
+    from vitac.tasks.insertion.task import keypoint_offsets, mean_keypoint_distance
 
     rng = np.random.default_rng(1)
     offsets = keypoint_offsets(4, 0.5)
@@ -190,7 +192,7 @@ def test_keypoint_distance_is_the_mean_distance_between_matching_keypoints():
 
 
 def test_state_round_trip_continues_exactly():
-    e = InsertionEnv({"observations": ["proprio", "tactile_left", "contact_forces"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio", "tactile_left", "contact_forces"]}, seed=0)
     e.reset(seed=5)
     for _ in range(10):
         e.step(np.full(6, 0.3))
@@ -206,7 +208,7 @@ def test_state_round_trip_continues_exactly():
 
 
 def test_oracle_inserts_and_random_policy_does_not():
-    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
     rng = np.random.default_rng(0)
     oracle_success, random_success = [], []
     for ep in range(4):
@@ -228,9 +230,9 @@ def test_inserted_peg_twisted_by_the_hand_stays_within_the_clearance(seed):
     # TacSL's rigid contacts let a fully inserted peg tilt only as far as the clearance allows (1.3 degrees,
     # 3.75 mm of mean keypoint distance, under the 4.5 mm threshold). Soft MuJoCo defaults let the hand twist
     # it to 3.7 degrees and fail an inserted peg.
-    from vitac.envs.oracle import OracleController
+    from vitac.tasks.insertion.oracle import OracleController
 
-    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
     e.reset(seed=seed)
     task, physics = e.task, e.physics
     oracle = OracleController(task)
@@ -241,14 +243,14 @@ def test_inserted_peg_twisted_by_the_hand_stays_within_the_clearance(seed):
     tilts = []
     for _ in range(60):  # push down while twisting about a horizontal axis at the largest action
         *_, info = e.step(np.array([0.0, 0.0, -1.0, 1.0, 0.0, 0.0]))
-        axis = physics.data.xmat[task._ids["peg_body"]].reshape(3, 3)[:, 2]
+        axis = physics.data.xmat[task._ids["held_body"]].reshape(3, 3)[:, 2]
         tilts.append(np.degrees(np.arccos(abs(axis[2]))))
     e.close()
     assert max(tilts) < 1.6 and info["success"], (max(tilts), info["keypoint_distance"])
 
 
 def test_episode_end_reports_where_the_peg_ended():
-    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
     inserted = e.run_oracle_episode(seed=100)
     outcomes = {}
     for name, action in [("still", np.zeros(6)), ("down", np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0]))]:
@@ -269,26 +271,26 @@ def test_episode_end_reports_where_the_peg_ended():
 def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis():
     rewards = []
     for scale in (0.0, 2.0):
-        e = InsertionEnv({"observations": ["proprio"], "lateral_reward_scale": scale}, seed=0)
+        e = TaskEnv({"observations": ["proprio"], "lateral_reward_scale": scale}, seed=0)
         e.reset(seed=5)
         _, reward, *_ = e.step(np.zeros(6))
         task, physics = e.task, e.physics
-        offset = np.linalg.norm(physics.data.xpos[task._ids["peg_body"]][:2] - task.socket_pos(physics)[:2])
+        offset = np.linalg.norm(physics.data.xpos[task._ids["held_body"]][:2] - task.socket_pos(physics)[:2])
         e.close()
         rewards.append(reward)
     assert offset > 0.01 and rewards[1] == pytest.approx(rewards[0] - 2.0 * offset)
-    with pytest.raises(ValueError, match=r"env\.lateral_reward_scale"):
+    with pytest.raises(ValueError, match=r"task\.lateral_reward_scale"):
         InsertionConfig.from_dict({"lateral_reward_scale": -1.0})
 
 
 def test_keypoint_reward_is_tacsls_formula_and_stays_finite_when_the_peg_is_far_away():
     import mujoco
 
-    e = InsertionEnv({"observations": ["proprio"], "success_reward_scale": 0.0}, seed=0)
+    e = TaskEnv({"observations": ["proprio"], "success_reward_scale": 0.0}, seed=0)
     e.reset(seed=5)
     task, physics = e.task, e.physics
     m, d = physics.model.ptr, physics.data.ptr
-    adr = task._ids["peg_qpos"]
+    adr = task._ids["held_qpos"]
     for height in (0.03, 0.2, 50.0):  # above the hole (no x10 penalty); 50 m: exp(50 d) overflows a float
         d.qpos[adr:adr + 3] = task.socket_pos(physics) + (0.0, 0.0, height)
         mujoco.mj_forward(m, d)
@@ -304,7 +306,7 @@ def test_randomizing_one_factor_only_varies_that_factor_between_episodes():
     assert only.ee_pos_low == [0.4, -0.1, 0.1] and only.socket_pos_low == only.socket_pos_high == [0.5, 0.0, 0.01]
     assert only.socket_obs_noise == 0.0 and only.peg_in_hand_tilt == [0.0, 0.0]
     assert Randomization().only(["socket_obs_noise"]).socket_obs_noise == 0.005
-    e = InsertionEnv({"observations": ["proprio"], "randomization": asdict(only)}, seed=0)
+    e = TaskEnv({"observations": ["proprio"], "randomization": asdict(only)}, seed=0)
     starts = []
     for seed in (1, 2):
         obs, _ = e.reset(seed=seed)
@@ -319,11 +321,11 @@ def test_randomizing_one_factor_only_varies_that_factor_between_episodes():
 
 
 def test_success_reward_is_paid_exactly_at_the_steps_where_the_success_check_holds():
-    from vitac.envs.oracle import OracleController
+    from vitac.tasks.insertion.oracle import OracleController
 
     runs = []
     for scale in (0.0, 0.5):
-        e = InsertionEnv({"observations": ["proprio"], "success_reward_scale": scale}, seed=0)
+        e = TaskEnv({"observations": ["proprio"], "success_reward_scale": scale}, seed=0)
         e.reset(seed=3)
         oracle, rewards, held = OracleController(e.task), [], []
         for _ in range(150):  # the oracle inserts within ~100 steps (test above)
@@ -336,12 +338,12 @@ def test_success_reward_is_paid_exactly_at_the_steps_where_the_success_check_hol
     np.testing.assert_array_equal(held, held_again)  # the bonus does not change the simulation
     assert held.any() and not held.all()
     np.testing.assert_allclose(bonus - plain, 0.5 * held, atol=1e-12)
-    with pytest.raises(ValueError, match=r"env\.success_reward_scale"):
+    with pytest.raises(ValueError, match=r"task\.success_reward_scale"):
         InsertionConfig.from_dict({"success_reward_scale": -0.1})
 
 
 def test_diverged_physics_ends_the_episode_as_a_failed_termination():
-    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
     e.reset(seed=1)
     e.step(np.zeros(6))
     e.physics.data.qvel[:] = 1e12  # what a blown-up contact leaves behind
@@ -359,7 +361,7 @@ def test_vector_env_workers_match_in_process_and_autoreset_same_step():
     actions = np.random.default_rng(0).uniform(-1, 1, (7, 4, 6))
     outputs = []
     for workers, step_in_main in ((0, False), (2, False), (2, True), (1, True)):
-        venv = InsertionVectorEnv(cfg, num_envs=4, num_workers=workers, seed=7, step_in_main=step_in_main)
+        venv = TaskVectorEnv(cfg, num_envs=4, num_workers=workers, seed=7, step_in_main=step_in_main)
         obs, _ = venv.reset(seed=7)
         trace = [obs["proprio"].copy()]
         for t in range(7):
@@ -376,7 +378,7 @@ def test_vector_env_workers_match_in_process_and_autoreset_same_step():
 
 
 def test_a_failing_group_is_reported_and_leaves_the_vector_env_in_step():
-    venv = InsertionVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
+    venv = TaskVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
     venv.reset(seed=0)
     bad = np.zeros((4, 6))
     bad[0, 0] = np.nan  # refused by this process's group, while the worker steps its two envs
@@ -392,7 +394,7 @@ def test_a_failing_group_is_reported_and_leaves_the_vector_env_in_step():
 
 
 def test_a_dead_worker_is_named_with_its_exit_code_and_close_still_works():
-    venv = InsertionVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
+    venv = TaskVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
     venv.reset(seed=0)
     worker = venv._procs[0]
     os.kill(worker.pid, signal.SIGKILL)  # e.g. the kernel's OOM killer
@@ -403,29 +405,29 @@ def test_a_dead_worker_is_named_with_its_exit_code_and_close_still_works():
 
 
 def test_env_refuses_bad_config_at_construction():
-    with pytest.raises(ValueError, match=r"env\.peg_shape='star'"):
-        InsertionEnv({"peg_shape": "star"})
-    with pytest.raises(ValueError, match=r"env\.socket_contact_timeconst=0\.001 .*2 physics timesteps"):
-        InsertionEnv({"socket_contact_timeconst": 0.001})
-    with pytest.raises(ValueError, match=r"env\.randomization\.bogus"):
+    with pytest.raises(ValueError, match=r"task\.peg_shape='star'"):
+        TaskEnv({"peg_shape": "star"})
+    with pytest.raises(ValueError, match=r"task\.socket_contact_timeconst=0\.001 .*2 physics timesteps"):
+        TaskEnv({"socket_contact_timeconst": 0.001})
+    with pytest.raises(ValueError, match=r"task\.randomization\.bogus"):
         InsertionConfig.from_dict({"randomization": {"bogus": 1}})
 
 
 @pytest.mark.parametrize("shape,size", [("rectangular", 16), ("round", 8), ("round", 12)])
 def test_other_pegs_build_and_oracle_inserts(shape, size):
-    e = InsertionEnv({"observations": ["proprio"], "peg_shape": shape, "peg_size": size}, seed=0)
+    e = TaskEnv({"observations": ["proprio"], "peg_shape": shape, "peg_size": size}, seed=0)
     info = e.run_oracle_episode(seed=21)
     e.close()
     assert info["success"], info
 
 
 def test_observed_socket_oracle_aims_at_the_noisy_socket():
-    from vitac.envs.oracle import OracleController
+    from vitac.tasks.insertion.oracle import OracleController
 
-    env = InsertionEnv({"observations": ["proprio"], "pos_action_scale": 1.0}, seed=0)  # 1 m: nothing clips
+    env = TaskEnv({"observations": ["proprio"], "pos_action_scale": 1.0}, seed=0)  # 1 m: nothing clips
     env.reset(seed=7)
     task, physics = env.task, env.physics
-    peg_xy = physics.data.xpos[task._ids["peg_body"]][:2]
+    peg_xy = physics.data.xpos[task._ids["held_body"]][:2]
     true_xy = OracleController(task)(physics)[:2]
     seen_xy = OracleController(task, observed_socket=True)(physics)[:2]
     scale = task.config.pos_action_scale
@@ -438,7 +440,7 @@ def test_observed_socket_oracle_aims_at_the_noisy_socket():
 
 @pytest.mark.slow
 def test_oracle_success_over_200_episodes_is_at_least_95_percent():
-    e = InsertionEnv({"observations": ["proprio"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
     successes = [e.run_oracle_episode(seed=s)["success"] for s in range(200)]
     e.close()
     assert np.mean(successes) >= 0.95
@@ -472,9 +474,9 @@ def test_contact_forces_are_the_last_substeps_solve_and_a_fresh_one_after_reset(
 
     import mujoco
 
-    from vitac.envs.oracle import OracleController
+    from vitac.tasks.insertion.oracle import OracleController
 
-    e = InsertionEnv({"observations": ["proprio", "contact_forces"]}, seed=0)
+    e = TaskEnv({"observations": ["proprio", "contact_forces"]}, seed=0)
     obs, _ = e.reset(seed=20)  # no substep yet: solved for the state
     m, d, substeps = e.physics.model.ptr, e.physics.data.ptr, e.task.physics_steps_per_control_step
     rng, oracle = np.random.default_rng(0), OracleController(e.task)

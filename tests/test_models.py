@@ -6,12 +6,12 @@ import pytest
 import torch
 
 from tests.conftest import compose_config
-from vitac.envs.config import InsertionConfig
 from vitac.models.encoders import ConvSoftArgmaxEncoder, SpatialSoftArgmax
 from vitac.models.fusion import CrossModalTransformer, GatedFusion, NaiveFusion
 from vitac.models.head import RecurrentActorHead
 from vitac.models.symmetry import SymmetryRegularizer, flip_vertical
-from vitac.train import build_policy_from_config, env_settings
+from vitac.run_config import build_policy_from_config, task_settings
+from vitac.tasks.insertion.config import InsertionConfig
 
 
 def _intermediate_shapes(encoder, x):
@@ -66,17 +66,17 @@ def test_spatial_softargmax_finds_the_peak():
 
 def test_fusion_output_sizes():
     v, left, right = torch.randn(4, 128), torch.randn(4, 128), torch.randn(4, 128)
-    assert NaiveFusion(128, 3)(v, left, right).shape == (4, 384)
+    assert NaiveFusion(128, 3)(dict(vision=v, left=left, right=right)).shape == (4, 384)
     gated = GatedFusion(128)
-    assert gated(v, left, right).shape == (4, 128)
+    assert gated(dict(vision=v, left=left, right=right)).shape == (4, 128)
     assert torch.allclose(gated.last_weights.sum(-1), torch.ones(4))
-    assert CrossModalTransformer(128, num_heads=4)(v, left, right).shape == (4, 256)
+    assert CrossModalTransformer(128, num_heads=4)(dict(vision=v, left=left, right=right)).shape == (4, 256)
 
 
 def test_gated_fusion_is_a_convex_combination():
     gated = GatedFusion(8)
     v, left, right = torch.ones(2, 8), 2 * torch.ones(2, 8), 3 * torch.ones(2, 8)
-    out = gated(v, left, right)
+    out = gated(dict(vision=v, left=left, right=right))
     w = gated.last_weights
     assert torch.allclose(out, (w[:, 0:1] * 1 + w[:, 1:2] * 2 + w[:, 2:3] * 3).expand(-1, 8))
 
@@ -85,9 +85,9 @@ def test_cmt_vision_attends_to_tactile():
     torch.manual_seed(0)
     cmt = CrossModalTransformer(16, num_heads=2)
     v, left, right = torch.randn(1, 16), torch.randn(1, 16), torch.randn(1, 16)
-    base = cmt(v, left, right)
-    assert not torch.allclose(base, cmt(v, left + 1.0, right)), "tactile keys/values must influence the output"
-    assert not torch.allclose(cmt(v, left, right), cmt(v, right, left)), "left and right tokens must be distinguishable"
+    base = cmt(dict(vision=v, left=left, right=right))
+    assert not torch.allclose(base, cmt(dict(vision=v, left=left + 1.0, right=right))), "tactile keys/values must influence the output"
+    assert not torch.allclose(cmt(dict(vision=v, left=left, right=right)), cmt(dict(vision=v, left=right, right=left))), "left and right tokens must be distinguishable"
 
 
 def test_symmetry_loss_is_zero_for_a_mirrored_pair_and_positive_otherwise():
@@ -126,7 +126,7 @@ def test_log_std_is_clamped():
 
 def _policy(reg):
     cfg = compose_config(["obs=wrist_tactile", "fusion=cmt", f"reg={reg}"])
-    return build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+    return build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 
 def _batch(T=2, B=2):

@@ -8,12 +8,12 @@ import pytest
 import torch
 
 from tests.conftest import compose_config
-from vitac.envs.config import InsertionConfig, observation_shapes
 from vitac.models.head import RecurrentActorHead
 from vitac.rl.buffer import RolloutBuffer, check_batch_layout
 from vitac.rl.losses import gaussian_log_prob
 from vitac.rl.ppo import PPO
-from vitac.train import build_policy_from_config, env_settings
+from vitac.run_config import build_policy_from_config, task_settings
+from vitac.tasks.insertion.config import InsertionConfig
 
 
 class FakeVectorEnv:
@@ -27,7 +27,7 @@ class FakeVectorEnv:
         self.log = []
 
     def _obs(self):
-        shapes = observation_shapes(InsertionConfig())
+        shapes = InsertionConfig().observation_shapes()
         return {k: self.rng.normal(size=(self.num_envs, *shapes[k])).astype(np.float32)
                 for k in ("proprio", "peg_state", "critic_state")}
 
@@ -48,8 +48,8 @@ class FakeVectorEnv:
 
 
 def _policy(critic="state"):
-    cfg = compose_config(["obs=privileged", f"critic={critic}"])
-    return build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+    cfg = compose_config(["experiment=t1_privileged", f"critic={critic}"])
+    return build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 
 def _module(critic="state", num_envs=4, horizon=16, seq_len=8, minibatch_size=16):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vitac.sensors.tactile import PegGeometry, TactileFieldSensor
+from vitac.sim.tactile import PegGeometry, TactileFieldSensor
 
 PEG = PegGeometry("round", 0.008, 0.008, 0.05)
 PAD_ROT = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # pad x = world x, y = world z, z (out) = world -y

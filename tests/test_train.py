@@ -16,11 +16,12 @@ import pytest
 import torch
 
 from tests.conftest import CONF, compose_config
-from vitac.envs.config import InsertionConfig, observation_shapes
-from vitac.envs.gym_env import InsertionEnv
+from vitac.envs.gym_env import TaskEnv
 from vitac.evaluate import evaluate, load_policy
 from vitac.models.normalizer import RunningNormalizer
-from vitac.train import build_policy_from_config, env_settings, load_weights, train
+from vitac.run_config import build_policy_from_config, task_settings
+from vitac.tasks.insertion.config import InsertionConfig
+from vitac.train import load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
 from vitac.utils.checks import resolve_groups, resolve_threads
 from vitac.utils.records import describe_cpu, write_json, write_record
@@ -50,7 +51,7 @@ def test_smoke_run_writes_checkpoint_and_metrics_and_logs_every_loss_term(tmp_pa
         assert rows[-1][key] != "", key
     assert float(rows[-1]["losses/sym_loss"]) > 0
     assert run["preset"] == "smoke"
-    assert (tmp_path / "run" / "videos" / "iter00002.mp4").stat().st_size > 1000  # every 2nd evaluation
+    assert (tmp_path / "run" / "videos" / "iter_00002.mp4").stat().st_size > 1000  # every 2nd evaluation
 
 
 def test_same_seed_same_first_iterations(tmp_path):
@@ -84,7 +85,7 @@ def test_killed_run_resumes_to_the_same_metrics(tmp_path):
 def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continues_from_it(tmp_path):
     # No periodic checkpoints: last.ckpt can only come from the SIGTERM. 4 envs in 2 groups: one worker process,
     # which gets the SIGTERM too (as from SLURM or `kill -- -PGID`).
-    args = ["preset=smoke", "obs=privileged", "algo.num_envs=4", "algo.num_workers=2", "algo.save_every=1000",
+    args = ["preset=smoke", "experiment=t1_privileged", "algo.num_envs=4", "algo.num_workers=2", "algo.save_every=1000",
             "algo.eval_every=1000", "logger=csv"]
     proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args, "algo.iterations=500",
                              f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, stderr=subprocess.PIPE,
@@ -121,7 +122,7 @@ def test_sigterm_to_an_image_run_closes_its_evaluation_renderers_before_exit(tmp
 
 
 def test_resuming_without_the_curriculum_restores_the_configured_ranges(tmp_path):
-    base = ["preset=smoke", "obs=privileged", "algo.curriculum.enabled=true", "algo.curriculum.start=0.0"]
+    base = ["preset=smoke", "experiment=t1_privileged", "algo.curriculum.enabled=true", "algo.curriculum.start=0.0"]
     train(compose_config(base + ["algo.iterations=1"], output_dir=tmp_path / "part"))
 
     def env_scales(run_dir, extra):
@@ -135,7 +136,7 @@ def test_resuming_without_the_curriculum_restores_the_configured_ranges(tmp_path
 
 
 def test_init_ckpt_starts_a_new_run_from_another_runs_weights(tmp_path):
-    base = ["preset=smoke", "obs=privileged", "algo.iterations=1"]
+    base = ["preset=smoke", "experiment=t1_privileged", "algo.iterations=1"]
     first = train(compose_config(base, output_dir=tmp_path / "first"))
     source = load_checkpoint(first["checkpoint"])["state_dict"]
     warm = train(compose_config(base + ["seed=1", f"init_ckpt={first['checkpoint']}", "init_exclude=[policy.head.log_std]",
@@ -150,21 +151,21 @@ def test_init_ckpt_starts_a_new_run_from_another_runs_weights(tmp_path):
         train(compose_config(SMOKE + [f"init_ckpt={first['checkpoint']}"], output_dir=tmp_path / "bad"))
 
 
-def _warm_started(obs_name: str, ckpt: str, tmp_path):
-    """A policy with obs=`obs_name` after load_weights from `ckpt` (the module stand-in has PPO's state keys)."""
-    cfg = compose_config(["preset=smoke", f"obs={obs_name}"], output_dir=tmp_path / obs_name)
+def _warm_started(experiment: str, ckpt: str, tmp_path):
+    """The policy of a Table I row after load_weights from `ckpt` (the module stand-in has PPO's state keys)."""
+    cfg = compose_config(["preset=smoke", f"experiment={experiment}"], output_dir=tmp_path / experiment)
     holder = torch.nn.Module()
-    holder.policy = build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+    holder.policy = build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
     holder.value_normalizer = RunningNormalizer((), clip=float("inf"))
     load_weights(holder, ckpt, [])
     return holder.policy, cfg
 
 
 def test_init_ckpt_adds_contact_forces_with_zero_weights_so_the_warm_policy_acts_as_the_checkpoint(tmp_path):
-    first = train(compose_config(["preset=smoke", "obs=privileged", "algo.iterations=2"], output_dir=tmp_path / "first"))
+    first = train(compose_config(["preset=smoke", "experiment=t1_privileged", "algo.iterations=2"], output_dir=tmp_path / "first"))
     source, _, _ = load_policy(first["checkpoint"])
-    warm, cfg = _warm_started("privileged_contact", first["checkpoint"], tmp_path)
-    shapes = observation_shapes(InsertionConfig.from_dict(env_settings(cfg)))
+    warm, cfg = _warm_started("t1_privileged_contact", first["checkpoint"], tmp_path)
+    shapes = InsertionConfig.from_dict(task_settings(cfg)).observation_shapes()
     generator = torch.Generator().manual_seed(0)
     obs = {k: 3 * torch.randn(5, 4, *shapes[k], generator=generator) for k in ("proprio", "peg_state", "contact_forces",
                                                                               "critic_state")}
@@ -183,15 +184,15 @@ def test_init_ckpt_adds_contact_forces_with_zero_weights_so_the_warm_policy_acts
     assert weight.grad[:, added].abs().sum() > 0
     # A warm start that changes which observations come first is refused, naming the checkpoint.
     with pytest.raises(ValueError, match="init_ckpt=.*does not fit this policy"):
-        _warm_started("wrist_tactile", first["checkpoint"], tmp_path)
+        _warm_started("t1_fusion_naive", first["checkpoint"], tmp_path)
     # And a training run goes on from it.
-    run = train(compose_config(["preset=smoke", "obs=privileged_contact", "algo.iterations=1",
+    run = train(compose_config(["preset=smoke", "experiment=t1_privileged_contact", "algo.iterations=1",
                                 f"init_ckpt={first['checkpoint']}"], output_dir=tmp_path / "warm_run"))
     assert Path(run["checkpoint"]).is_file()
 
 
 def test_adaptive_lr_schedule_steps_after_every_minibatch_or_at_its_boundary_and_fixed_keeps_lr(tmp_path):
-    base = ["preset=smoke", "obs=privileged"]
+    base = ["preset=smoke", "experiment=t1_privileged"]
     lr = compose_config(base).algo.lr
     steps = 2 * 2  # smoke: 2 mini-epochs of 2 minibatches per iteration
     # With a threshold no KL comes near, the rate grows by 1.5 at every minibatch step (its other branches:
@@ -273,11 +274,11 @@ def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tm
 
 
 def test_bench_physics_meter_counts_every_substep_and_restores_the_methods_it_patches():
-    from vitac.envs.insertion import InsertionTask
+    from vitac.tasks.insertion.task import InsertionTask
 
     bench = _tool("bench_physics")
     original_step, original_forces = InsertionTask.step_physics, InsertionTask._contact_forces
-    env = InsertionEnv({"observations": bench.OBSERVATIONS}, seed=0)
+    env = TaskEnv({"observations": bench.OBSERVATIONS}, seed=0)
     env.reset(seed=0)
     meter = bench.PhysicsMeter()
     try:
@@ -297,7 +298,7 @@ def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
     import mujoco
 
     bench = _tool("bench_physics")
-    env = InsertionEnv({"observations": bench.OBSERVATIONS}, seed=0)
+    env = TaskEnv({"observations": bench.OBSERVATIONS}, seed=0)
     env.reset(seed=0)
     meter = bench.PhysicsMeter(bench.parse_options(["cone=0", "tolerance=1e-6"]), bench.parse_disable(["MULTICCD"]))
     try:
@@ -438,7 +439,7 @@ def test_resume_without_checkpoint_fails_clearly(tmp_path):
                                            ("gpu", r"trainer.accelerator='gpu' is not allowed here: torch sees no CUDA")])
 def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, value, pattern):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    monkeypatch.setattr("vitac.train.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
     with pytest.raises(ValueError, match=pattern):
         train(compose_config(SMOKE + [f"trainer.accelerator={value}"], output_dir=tmp_path / "x"))
 
@@ -464,7 +465,7 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
     ("trainer.deterministic=maybe", r"trainer\.deterministic='maybe' is not allowed: expected true or false"),
 ])
 def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
-    monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    monkeypatch.setattr("vitac.train.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
     monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(ValueError, match=pattern):
         train(compose_config(SMOKE + override.split(), output_dir=tmp_path / "x"))
@@ -481,7 +482,7 @@ def test_auto_workers_take_the_largest_divisor_of_the_envs_within_the_usable_cor
 
 
 def test_train_and_evaluate_run_their_environments_in_the_auto_groups(tmp_path, monkeypatch):
-    smoke = ["preset=smoke", "obs=privileged"]
+    smoke = ["preset=smoke", "experiment=t1_privileged"]
     ckpt = train(compose_config(smoke, output_dir=tmp_path / "run"))["checkpoint"]
     monkeypatch.setattr("vitac.utils.checks.usable_cores", lambda: 3)
     built = []
@@ -490,8 +491,8 @@ def test_train_and_evaluate_run_their_environments_in_the_auto_groups(tmp_path, 
         built.append(kwargs["num_workers"])
         raise RuntimeError("stop")
 
-    monkeypatch.setattr("vitac.train.InsertionVectorEnv", capture)
-    monkeypatch.setattr("vitac.evaluate.InsertionVectorEnv", capture)
+    monkeypatch.setattr("vitac.train.TaskVectorEnv", capture)
+    monkeypatch.setattr("vitac.evaluate.TaskVectorEnv", capture)
     with pytest.raises(RuntimeError, match="stop"):
         train(compose_config(smoke + ["algo.num_envs=6", "algo.num_workers=auto", "trainer.update_threads=auto"],
                              output_dir=tmp_path / "auto"))
@@ -514,15 +515,15 @@ def test_bad_evaluation_arguments_are_refused_before_the_checkpoint_is_read(monk
 
 
 def test_resume_that_cannot_continue_exactly_is_refused_before_any_environment_is_built(tmp_path, monkeypatch):
-    smoke = ["preset=smoke", "obs=privileged"]
+    smoke = ["preset=smoke", "experiment=t1_privileged"]
     train(compose_config(smoke, output_dir=tmp_path / "run"))
-    monkeypatch.setattr("vitac.train.InsertionVectorEnv", lambda *a, **k: pytest.fail("environments built"))
+    monkeypatch.setattr("vitac.train.TaskVectorEnv", lambda *a, **k: pytest.fail("environments built"))
     with pytest.raises(ValueError, match=r"algo\.num_envs=4 is not allowed with resume=.*holds the states of 2 "
                                          r"environments; resume with algo\.num_envs=2, or .* init_ckpt="):
         train(compose_config(smoke + ["algo.num_envs=4", f"resume={tmp_path / 'run'}"], output_dir=tmp_path / "a"))
     with pytest.raises(ValueError, match=r"does not fit this policy: \d+ tensors differ .*policy\.normalizers\.contact"
                                          r".*set differently from the checkpoint's: \['obs'\]"):
-        train(compose_config(["preset=smoke", "obs=privileged_contact", f"resume={tmp_path / 'run'}"],
+        train(compose_config(["preset=smoke", "experiment=t1_privileged_contact", f"resume={tmp_path / 'run'}"],
                              output_dir=tmp_path / "b"))
 
 
@@ -546,7 +547,7 @@ def test_evaluate_reports_success_with_interval(tmp_path, capfd):
     assert 0.0 <= low <= report["success_rate"] <= high <= 1.0
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
     assert report["socket_obs_noise"] == 0.005
-    assert sum(report["outcomes"].values()) == 2 and len(report["final_peg"]) == 2
+    assert sum(report["outcomes"].values()) == 2 and len(report["final_state"]) == 2
     table = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json")], check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout
     assert sum(int(line.split("|")[3]) for line in table.splitlines()[2:]) == 2
@@ -594,7 +595,7 @@ def test_corrupt_checkpoint_is_refused(tmp_path):
 
 
 def test_critic_from_a_privileged_run(tmp_path):
-    privileged = train(compose_config(["preset=smoke", "obs=privileged"], output_dir=tmp_path / "priv"))
+    privileged = train(compose_config(["preset=smoke", "experiment=t1_privileged"], output_dir=tmp_path / "priv"))
     run = train(compose_config(SMOKE + [f"critic_ckpt={privileged['checkpoint']}", "freeze_critic=true"],
                                output_dir=tmp_path / "aacd"))
     import torch

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco loads
-from vitac.envs.vector_env import InsertionVectorEnv
+from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco loads
+from vitac.envs.vector_env import TaskVectorEnv
 from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
@@ -39,7 +39,7 @@ def _timed(owner, name: str, totals: dict, key: str):
 
 
 def single_env(steps: int) -> dict:
-    env = InsertionEnv({"observations": ALL}, seed=0)
+    env = TaskEnv({"observations": ALL}, seed=0)
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
     for a in actions[:50]:  # warm-up
@@ -68,7 +68,7 @@ def single_env(steps: int) -> dict:
 
 
 def vectorised(num_envs: int, workers: int, steps: int) -> float:
-    venv = InsertionVectorEnv({"observations": ALL}, num_envs=num_envs, num_workers=workers, seed=0)
+    venv = TaskVectorEnv({"observations": ALL}, num_envs=num_envs, num_workers=workers, seed=0)
     venv.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, num_envs, 6))
     for a in actions[:20]:

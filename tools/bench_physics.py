@@ -26,9 +26,9 @@ import mujoco
 import numpy as np
 import torch
 
-from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco renders
-from vitac.envs.insertion import InsertionTask
-from vitac.envs.oracle import OracleController
+from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco renders
+from vitac.tasks.insertion.oracle import OracleController
+from vitac.tasks.insertion.task import InsertionTask
 from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
@@ -91,7 +91,7 @@ class PhysicsMeter:
 
 
 def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable_mask: int) -> dict:
-    env = InsertionEnv({"observations": OBSERVATIONS}, seed=seed)
+    env = TaskEnv({"observations": OBSERVATIONS}, seed=seed)
     rng = np.random.default_rng(seed)
     env.run_oracle_episode(seed=seed - 1)  # warm-up: numba compiles, MuJoCo allocates
     meter, steps, successes = PhysicsMeter(options, disable_mask), 0, 0
@@ -115,13 +115,13 @@ def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable
 
 
 def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable_mask: int) -> dict:
-    from vitac.envs.vector_env import InsertionVectorEnv
+    from vitac.envs.vector_env import TaskVectorEnv
     from vitac.evaluate import load_policy
     from vitac.rl.evaluation import run_episodes
 
     policy, _, settings = load_policy(ckpt)
     torch.set_num_threads(1)
-    envs = InsertionVectorEnv(settings, num_envs=1, num_workers=0, seed=seed, step_in_main=True)
+    envs = TaskVectorEnv(settings, num_envs=1, num_workers=0, seed=seed, step_in_main=True)
     try:
         run_episodes(policy, envs, 1, seed - 1, deterministic=False)  # warm-up
         meter = PhysicsMeter(options, disable_mask)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.tasks.insertion.config import InsertionConfig
 from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
@@ -27,12 +27,12 @@ def policy_from_overrides(overrides: list):
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
-    from vitac.train import build_policy_from_config, env_settings
+    from vitac.run_config import build_policy_from_config, task_settings
 
     GlobalHydra.instance().clear()
     with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
         cfg = compose("config", overrides=overrides)
-    return build_policy_from_config(cfg, InsertionConfig.from_dict(env_settings(cfg)))
+    return build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 
 def make_policy(fusion: str):
@@ -40,7 +40,7 @@ def make_policy(fusion: str):
 
 
 def inputs(batch: int, device):
-    shapes = observation_shapes(InsertionConfig())
+    shapes = InsertionConfig().observation_shapes()
     obs = {k: torch.rand(1, batch, *shapes[k], device=device) for k in ("proprio", "tactile_left", "tactile_right")}
     obs["wrist"] = torch.randint(0, 255, (1, batch, *shapes["wrist"]), dtype=torch.uint8, device=device)
     return obs

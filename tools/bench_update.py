@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from vitac.envs.config import InsertionConfig, observation_shapes
+from vitac.tasks.insertion.config import InsertionConfig
 from vitac.utils.cli import int_at_least, number_above
 from vitac.utils.records import write_record
 
@@ -83,7 +83,7 @@ def main():
     torch.manual_seed(0)
     policy = make_policy("cmt").train()
     optimizer = torch.optim.Adam(policy.parameters(), lr=1e-4)
-    shapes = observation_shapes(InsertionConfig())
+    shapes = InsertionConfig().observation_shapes()
     T, B = args.seq_len, args.minibatch // args.seq_len
     obs = {k: torch.rand(T, B, *shapes[k]) for k in ("proprio", "tactile_left", "tactile_right")}
     obs["wrist"] = torch.randint(0, 255, (T, B, *shapes["wrist"]), dtype=torch.uint8)

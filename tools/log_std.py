@@ -14,7 +14,7 @@ import argparse
 import numpy as np
 import torch
 
-from vitac.envs.gym_env import InsertionEnv
+from vitac.envs.gym_env import TaskEnv
 from vitac.evaluate import load_policy
 from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
 
@@ -34,7 +34,7 @@ def main():
         return
     raw = []
     policy.head.log_std.register_forward_hook(lambda module, inputs, output: raw.append(output.reshape(-1, output.shape[-1])))
-    env = InsertionEnv(settings)
+    env = TaskEnv(settings)
     with torch.inference_mode():
         for seed in range(args.episodes):
             obs, _ = env.reset(seed=seed)

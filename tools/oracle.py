@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from vitac.envs.gym_env import InsertionEnv
+from vitac.envs.gym_env import TaskEnv
 from vitac.rl.evaluation import summarize
 from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
@@ -31,7 +31,7 @@ def main():
                         help="aim at the observed (noisy) socket position instead of the true one")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    env = InsertionEnv({"observations": ["proprio"], "peg_shape": args.peg_shape, "peg_size": args.peg_size},
+    env = TaskEnv({"observations": ["proprio"], "peg_shape": args.peg_shape, "peg_size": args.peg_size},
                        seed=args.seed)
     rng = np.random.default_rng(args.seed)
     results, start = [], time.perf_counter()

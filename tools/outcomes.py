@@ -48,7 +48,7 @@ def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
     differ = [k for k in SAME_EPISODES if first.get(k) != second.get(k)]
     if differ:
         raise SystemExit(f"--paired: {names[0]} and {names[1]} are not the same episodes ({differ} differ)")
-    a, b = ([e["outcome"] == "inserted" for e in r["final_peg"]] for r in (first, second))
+    a, b = ([e["outcome"] == "inserted" for e in final_states(r)] for r in (first, second))
     only_first = sum(x and not y for x, y in zip(a, b, strict=True))
     only_second = sum(y and not x for x, y in zip(a, b, strict=True))
     return (f"paired: inserted only by {names[0]}: {only_first}, only by {names[1]}: {only_second}, "
@@ -77,9 +77,18 @@ def read_report(path: Path) -> dict:
     report = read_whole(path, json.load, "a vitac.evaluate report")
     if not isinstance(report, dict) or not {"episodes", "success_rate", "seed"} <= report.keys():
         raise SystemExit(f"{path}: not a vitac.evaluate report (no episodes, success_rate and seed)")
-    if "final_peg" not in report:
-        raise SystemExit(f"{path}: no 'final_peg' entries (written by an older vitac.evaluate); evaluate again")
+    if "final_state" not in report and "final_peg" not in report:
+        raise SystemExit(f"{path}: no 'final_state' entries (written by an older vitac.evaluate); evaluate again")
     return report
+
+
+def final_states(report: dict) -> list[dict]:
+    """Each episode's end: outcome, offset from the hole axis and height (mm), tilt (deg); reports written
+    before 'final_state' held these already converted, as 'final_peg'."""
+    if "final_peg" in report:
+        return report["final_peg"]
+    return [dict(outcome=e["outcome"], offset_xy_mm=1000 * e["peg_offset_xy"], height_mm=1000 * e["peg_height"],
+                 tilt_deg=math.degrees(e["peg_tilt"])) for e in report["final_state"]]
 
 
 def main():
@@ -96,7 +105,7 @@ def main():
     print("|---|---|---|---|---|---|")
     for path, report in zip(args.reports, reports, strict=True):
         by_outcome: dict[str, list] = {}
-        for episode in report["final_peg"]:
+        for episode in final_states(report):
             by_outcome.setdefault(episode["outcome"], []).append(episode)
         for outcome, episodes in sorted(by_outcome.items(), key=lambda item: -len(item[1])):
             cells = [quartiles([e[k] for e in episodes]) for k in ("offset_xy_mm", "height_mm", "tilt_deg")]

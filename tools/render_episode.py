@@ -12,8 +12,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from vitac.envs.gym_env import InsertionEnv  # first: it selects headless EGL before mujoco loads
-from vitac.envs.oracle import OracleController
+from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco loads
+from vitac.tasks.insertion.oracle import OracleController
 from vitac.utils.cli import int_at_least
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS, policy_actor, record_episode, save_video
 
@@ -29,11 +29,11 @@ def main():
         from vitac.evaluate import load_policy
 
         policy, _, settings = load_policy(args.ckpt)
-        env = InsertionEnv(dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS))),
+        env = TaskEnv(dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS))),
                            seed=args.seed, offscreen_size=OUTSIDE)
         act = policy_actor(policy)
     else:
-        env = InsertionEnv({"observations": ["proprio"] + VIDEO_OBSERVATIONS}, seed=args.seed, offscreen_size=OUTSIDE)
+        env = TaskEnv({"observations": ["proprio"] + VIDEO_OBSERVATIONS}, seed=args.seed, offscreen_size=OUTSIDE)
         oracle = OracleController(env.task)
         act = lambda obs: oracle(env.physics)  # noqa: E731
     frames, info = record_episode(env, act, args.seed, args.every)

@@ -9,17 +9,16 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 from pathlib import Path
 
 import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from vitac.envs.config import InsertionConfig, Randomization
-from vitac.envs.vector_env import InsertionVectorEnv
+from vitac.envs.vector_env import TaskVectorEnv
 from vitac.rl.evaluation import run_episodes
-from vitac.train import build_policy_from_config, env_settings
+from vitac.run_config import build_policy_from_config, task_settings
+from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import load_checkpoint
 from vitac.utils.checks import check_flag, check_int, resolve_groups
 from vitac.utils.records import write_json
@@ -31,8 +30,13 @@ def load_policy(ckpt: str | Path):
     """Rebuild the policy from the resolved config stored in the checkpoint, then load its weights."""
     checkpoint = load_checkpoint(ckpt)
     cfg = OmegaConf.create(checkpoint["vitac_config"])
-    settings = env_settings(cfg)
-    policy = build_policy_from_config(cfg, InsertionConfig.from_dict(settings))
+    settings = task_settings(cfg)
+    task_config = make_task_config(settings)
+    if all(task_config.observation_specs()[k].kind != "image" for k in cfg.obs.modalities):
+        # Runs from before fusion and reg were checked against obs recorded the defaults (cmt, sym) beside
+        # image-free observations, where neither was ever built: the same policy as naive and none.
+        cfg.fusion, cfg.reg.lambda_sym = {"_target_": "vitac.models.fusion.NaiveFusion", "_partial_": True}, 0.0
+    policy = build_policy_from_config(cfg, task_config)
     weights = {k[len("policy."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("policy.")}
     policy.load_state_dict(weights)
     return policy, cfg, settings
@@ -58,26 +62,28 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
     if socket_obs_noise is not None:
         settings["randomization"]["socket_obs_noise"] = socket_obs_noise
     if randomize_only is not None:
-        settings["randomization"] = Randomization(**settings["randomization"]).only(list(randomize_only)).__dict__
-    InsertionConfig.from_dict(settings)  # refuse a bad override before any simulation
+        task_config = make_task_config(settings)
+        settings["randomization"] = task_config.randomization.only(list(randomize_only)).__dict__
+    make_task_config(settings)  # refuse a bad override before any simulation
     # One thread for batch-4 inference: the env workers need the cores. Beside a training run, 16 episodes took
     # 203 s with torch's default 2 threads (OpenMP spinning against the workers) and 25 s with 1.
     torch.set_num_threads(1)
-    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed, step_in_main=step_in_main)
+    envs = TaskVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=seed, step_in_main=step_in_main)
     try:
         summary = run_episodes(policy, envs, episodes, seed, deterministic=deterministic, progress=True)
     finally:
         envs.close()
     report = dict(ckpt=str(ckpt), preset=cfg.preset.name, obs=cfg.obs.name, seed=seed,
                   randomization_scale=settings["randomization"]["scale"],
-                  socket_obs_noise=settings["randomization"]["socket_obs_noise"],
+                  socket_obs_noise=settings["randomization"].get("socket_obs_noise"),
                   randomize_only=list(randomize_only) if randomize_only is not None else None,
                   policy="deterministic" if deterministic else "stochastic",
                   **{k: v for k, v in summary.items() if k != "episodes_detail"},
                   final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]],
-                  final_peg=[dict(outcome=e["outcome"], offset_xy_mm=round(1000 * e["peg_offset_xy"], 2),
-                                  height_mm=round(1000 * e["peg_height"], 2), tilt_deg=round(math.degrees(e["peg_tilt"]), 2))
-                             for e in summary["episodes_detail"]])
+                  # How each episode ended, as the task's outcome() reports it (SI units: m, rad).
+                  final_state=[{k: round(v, 6) if isinstance(v, float) else v for k, v in e.items()
+                                if k not in ("success", "steps_to_success", "keypoint_distance")}
+                               for e in summary["episodes_detail"]])
     only = "" if randomize_only is None else ".only-" + "-".join(randomize_only)
     target = Path(out) if out else Path(ckpt).with_suffix(f".eval{only}.json")
     write_json(target, report)
@@ -91,7 +97,7 @@ def main(cfg: DictConfig) -> None:
     report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
                       cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only,
                       cfg.step_in_main)
-    print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm", "final_peg")},
+    print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm", "final_state")},
                      indent=2))
 
 

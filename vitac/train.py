@@ -13,35 +13,26 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import CSVLogger, WandbLogger
 from omegaconf import DictConfig, OmegaConf
 
-from vitac.envs.config import InsertionConfig, observation_shapes
-from vitac.envs.gym_env import InsertionEnv
-from vitac.envs.vector_env import InsertionVectorEnv
-from vitac.models.build import build_policy
-from vitac.models.policy import IMAGE_ROLES, VECTOR_KEYS
-from vitac.rl.callbacks import CheckpointOnTermination, EvaluationCallback, IterationProgressBar
+from vitac.envs.gym_env import TaskEnv
+from vitac.envs.vector_env import TaskVectorEnv
+from vitac.rl.callbacks import (
+    BestEvaluation,
+    CheckpointOnTermination,
+    EvaluationCallback,
+    IterationProgressBar,
+)
 from vitac.rl.curriculum import RandomizationCurriculum
 from vitac.rl.hyperparameters import check_algo, check_seed, resolve_trainer_threads
 from vitac.rl.lr_schedule import make_lr_schedule
 from vitac.rl.ppo import PPO
+from vitac.run_config import build_policy_from_config, task_settings
+from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO, load_checkpoint
 from vitac.utils.checks import resolve_groups
+from vitac.utils.quiet import quiet_third_party
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 
 log = logging.getLogger(__name__)
-
-
-def env_settings(cfg: DictConfig) -> dict:
-    """The task's keys with the observations the actor and critic read."""
-    settings = OmegaConf.to_container(cfg.env, resolve=True)
-    keys = list(cfg.obs.modalities)
-    if uses_critic(cfg):
-        keys.append("critic_state")
-    settings["observations"] = keys
-    return settings
-
-
-def uses_critic(cfg: DictConfig) -> bool:
-    return cfg.critic is not None and cfg.critic.get("_target_") is not None
 
 
 ACCELERATORS = ("cpu", "gpu", "auto")
@@ -55,12 +46,6 @@ def check_accelerator(accelerator: str) -> str:
         raise ValueError("trainer.accelerator='gpu' is not allowed here: torch sees no CUDA device "
                          f"(torch {torch.__version__}); use cpu or auto")
     return accelerator
-
-
-def build_policy_from_config(cfg: DictConfig, env_config: InsertionConfig):
-    shapes = observation_shapes(env_config)
-    return build_policy(cfg.encoder, cfg.fusion, cfg.head, cfg.reg, cfg.critic,
-                        {k: shapes[k] for k in cfg.obs.modalities}, critic_state_dim=shapes["critic_state"][0])
 
 
 POLICY_GROUPS = ("obs", "encoder", "fusion", "head", "reg", "critic")
@@ -106,8 +91,8 @@ def train(cfg: DictConfig) -> dict:
     curriculum = None
     if curriculum_settings.pop("enabled"):
         curriculum = RandomizationCurriculum(**curriculum_settings)
-    settings = env_settings(cfg)
-    env_config = InsertionConfig.from_dict(settings)
+    settings = task_settings(cfg)
+    task_config = make_task_config(settings)
     accelerator = check_accelerator(cfg.trainer.accelerator)
     rollout_threads, update_threads = resolve_trainer_threads(cfg.trainer.rollout_threads, cfg.trainer.update_threads,
                                                               cfg.trainer.deterministic)
@@ -115,7 +100,7 @@ def train(cfg: DictConfig) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     if cfg.seed is not None:  # before any weights are initialised
         L.seed_everything(cfg.seed, workers=True)
-    policy = build_policy_from_config(cfg, env_config)
+    policy = build_policy_from_config(cfg, task_config)
     log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
              sum(p.numel() for p in policy.parameters()))
     ckpt_path = None
@@ -129,15 +114,15 @@ def train(cfg: DictConfig) -> dict:
     num_envs, num_workers, step_in_main = algo.pop("num_envs"), algo.pop("num_workers"), algo.pop("step_in_main")
     iterations, eval_every, eval_episodes = algo.pop("iterations"), algo.pop("eval_every"), algo.pop("eval_episodes")
     save_every, video_every = algo.pop("save_every"), algo.pop("eval_video_every")
-    checkpoints = ModelCheckpoint(dirpath=out / "checkpoints", filename="iter{epoch:04d}", save_last=True,
-                                  every_n_epochs=save_every, save_top_k=-1)
-    best = ModelCheckpoint(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
-                           save_top_k=1, auto_insert_metric_name=False)
+    checkpoints = ModelCheckpoint(dirpath=out / "checkpoints", filename="iter_{iteration:05.0f}", save_last=True,
+                                  every_n_epochs=save_every, save_top_k=-1, auto_insert_metric_name=False)
+    best = BestEvaluation(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
+                          save_top_k=1, auto_insert_metric_name=False)
     video_settings = dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS)))
-    evaluation = EvaluationCallback(lambda: InsertionVectorEnv(settings, num_envs=min(num_envs, eval_episodes),
+    evaluation = EvaluationCallback(lambda: TaskVectorEnv(settings, num_envs=min(num_envs, eval_episodes),
                                                                num_workers=0, seed=1_000_000),
                                     every=eval_every, episodes=eval_episodes, video_every=video_every,
-                                    make_video_env=lambda: InsertionEnv(video_settings, seed=1_000_000,
+                                    make_video_env=lambda: TaskEnv(video_settings, seed=1_000_000,
                                                                         offscreen_size=OUTSIDE),
                                     video_dir=out / "videos")
     loggers = [CSVLogger(out, name="csv", version="")]
@@ -150,7 +135,7 @@ def train(cfg: DictConfig) -> dict:
                         enable_model_summary=False, log_every_n_steps=1, num_sanity_val_steps=0,
                         deterministic=cfg.trainer.deterministic, plugins=[PortableCheckpointIO()])
     log.info("policy and PPO update on %s; environments on CPU", trainer.strategy.root_device)
-    envs = InsertionVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0,
+    envs = TaskVectorEnv(settings, num_envs=num_envs, num_workers=num_workers, seed=cfg.seed or 0,
                               step_in_main=step_in_main)
     log.info("env: %d envs in %d groups (the main process steps one: %s), observations %s", num_envs,
              max(num_workers, 1), step_in_main or not num_workers, settings["observations"])
@@ -205,11 +190,13 @@ def load_weights(module: PPO, path: str, exclude: list) -> None:
 
 def _widen_feature_input(policy, weight: torch.Tensor, old_modalities: list, path: str) -> torch.Tensor:
     """The checkpoint's feature-input weights with zero columns for the observations it did not read."""
-    old_vectors = [k for k in VECTOR_KEYS if k in old_modalities]
-    old_images = [k for k in IMAGE_ROLES if k in old_modalities]
+    old_vectors = [k for k in policy.vector_keys if k in old_modalities]
+    old_images = [k for k in policy.image_keys if k in old_modalities]
+    dropped = set(old_modalities) - set(old_vectors) - set(old_images)
     added = policy.vector_keys[len(old_vectors):]
-    # Vector features come last, in VECTOR_KEYS order: only added vector observations append columns.
-    if old_images != policy.image_keys or policy.vector_keys[:len(old_vectors)] != old_vectors or not added:
+    # Vector features come last, in the task's order: only added vector observations append columns.
+    if (dropped or old_images != policy.image_keys or policy.vector_keys[:len(old_vectors)] != old_vectors
+            or not added):
         raise ValueError(f"init_ckpt={path!r} does not fit this policy: it read {sorted(old_modalities)}; a warm "
                          f"start may only add vector observations after those, not change them "
                          f"(this policy reads {policy.image_keys + policy.vector_keys})")
@@ -235,6 +222,7 @@ def load_critic(module: PPO, path: str) -> None:
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
 def main(cfg: DictConfig) -> float:
+    quiet_third_party()
     result = train(cfg)
     return result["metrics"].get("eval/success_rate", float("nan"))
 

@@ -32,7 +32,7 @@ def _frame(fig, axes, outside, wrist, left, right, step: int, info: dict) -> np.
 def record_episode(env, act: Callable[[dict], np.ndarray], seed: int, every: int = 3) -> tuple[list, dict]:
     """Run one episode with `act(obs) -> action`, rendering every `every`-th control step.
 
-    `env` is an InsertionEnv built with `offscreen_size >= OUTSIDE` and the VIDEO_OBSERVATIONS enabled.
+    `env` is an TaskEnv built with `offscreen_size >= OUTSIDE` and the VIDEO_OBSERVATIONS enabled.
     Returns the RGB frames and the last step's info (success, steps to succeed).
     """
     import matplotlib

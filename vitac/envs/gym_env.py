@@ -1,4 +1,4 @@
-"""gymnasium adapter of the composer insertion task: terminated vs truncated, success info, exact state."""
+"""gymnasium adapter of any composer task here: terminated vs truncated, success info, exact state."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import gymnasium as gym
 import numpy as np
 from dm_env import StepType
 
-from vitac.envs.config import InsertionConfig
-from vitac.envs.insertion import build_environment
+from vitac.sim.environment import build_environment
+from vitac.tasks import make_task_config
+from vitac.tasks.config import GraspTaskConfig
 
 
 def _space(spec) -> gym.spaces.Box:
@@ -16,25 +17,26 @@ def _space(spec) -> gym.spaces.Box:
     return gym.spaces.Box(-np.inf, np.inf, spec.shape, np.float32)
 
 
-class InsertionEnv(gym.Env):
-    """One insertion environment with gymnasium's API.
+class TaskEnv(gym.Env):
+    """One environment of a task with gymnasium's API.
 
     composer ends every episode at the time limit with discount 1: that is reported as `truncated`
     (bootstrap), and only a discount of 0 as `terminated`. `info` carries `success` (judged at the
     last step), `steps_to_success` (first step the criterion held, -1 if never) and `keypoint_distance`.
 
     Args:
-        config: task settings (an InsertionConfig or a dict of its keys).
+        config: task settings (a task's config, or a dict of its keys with `_target_` naming its class;
+            without it, the insertion task's).
         seed: seed of the episode random state.
         offscreen_size: offscreen render buffer in pixels (larger only for tools that render big views).
     """
 
     metadata = {"render_modes": ["rgb_array"]}
 
-    def __init__(self, config: InsertionConfig | dict | None = None, seed: int | None = None,
+    def __init__(self, config: GraspTaskConfig | dict | None = None, seed: int | None = None,
                  offscreen_size: int | None = None):
-        self.config = config if isinstance(config, InsertionConfig) else InsertionConfig.from_dict(config)
-        self._env = build_environment(self.config, seed=seed, offscreen_size=offscreen_size)
+        self.config = config if isinstance(config, GraspTaskConfig) else make_task_config(config)
+        self._env = build_environment(self.config.build_task(offscreen_size), seed=seed)
         obs_spec = self._env.observation_spec()
         self.observation_space = gym.spaces.Dict({k: _space(v) for k, v in obs_spec.items()})
         self.action_space = gym.spaces.Box(-1.0, 1.0, (6,), np.float32)
@@ -66,7 +68,7 @@ class InsertionEnv(gym.Env):
 
     def step(self, action):
         if self._needs_reset:
-            raise RuntimeError("InsertionEnv.step called after the episode ended: call reset() first")
+            raise RuntimeError("TaskEnv.step called after the episode ended: call reset() first")
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action={np.asarray(action).tolist()} is not allowed: expected 6 finite numbers in [-1, 1]")
         timestep = self._env.step(np.asarray(action, dtype=np.float64))
@@ -83,12 +85,12 @@ class InsertionEnv(gym.Env):
     def render(self):
         return self._env.task.render_wrist(self._env.physics)
 
-    def run_oracle_episode(self, seed: int, observed_socket: bool = False) -> dict:
-        """One episode driven by the scripted oracle (reads the true peg pose, and the true socket pose
-        unless `observed_socket`, then the noisy one the actor sees)."""
-        from vitac.envs.oracle import OracleController
+    def run_oracle_episode(self, seed: int, **oracle_options) -> dict:
+        """One episode driven by the task's scripted oracle (it reads the true state; insertion's takes
+        `observed_socket=True` to aim at the noisy socket position the actor sees)."""
+        from vitac.tasks import import_object
 
-        oracle = OracleController(self.task, observed_socket=observed_socket)
+        oracle = import_object(self.config.ORACLE)(self.task, **oracle_options)
         self.reset(seed=seed)
         done = False
         while not done:

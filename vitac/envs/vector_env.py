@@ -1,4 +1,4 @@
-"""N insertion environments over worker processes (several per worker), dict observations in shared memory.
+"""N task environments over worker processes (several per worker), dict observations in shared memory.
 
 Autoreset is same-step: when an episode ends, the returned observation already starts the next
 episode and `info["final_obs"][i]` holds the last observation of the ended one (for bootstrapping
@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-from vitac.envs.gym_env import InsertionEnv
+from vitac.envs.gym_env import TaskEnv
 from vitac.utils.checks import check_groups
 
 
@@ -24,7 +24,7 @@ class _EnvGroup:
     """k environments stepped in sequence, writing observations into given arrays."""
 
     def __init__(self, config: dict, seeds: list[int], obs_arrays: dict, offset: int):
-        self.envs = [InsertionEnv(config, seed=s) for s in seeds]
+        self.envs = [TaskEnv(config, seed=s) for s in seeds]
         self.obs, self.offset = obs_arrays, offset
 
     def _write(self, i: int, obs: dict):
@@ -94,11 +94,11 @@ def _worker(pipe, config, seeds, shm_specs, offset):
             shm.close()
 
 
-class InsertionVectorEnv(gym.vector.VectorEnv):
-    """gymnasium VectorEnv of `num_envs` insertion environments in `num_workers` processes.
+class TaskVectorEnv(gym.vector.VectorEnv):
+    """gymnasium VectorEnv of `num_envs` environments of one task in `num_workers` processes.
 
     Args:
-        config: InsertionConfig keys (a plain dict, sent to the workers).
+        config: the task's keys (a plain dict with its `_target_`, sent to the workers).
         num_envs: number of environments.
         num_workers: groups of environments stepped in parallel, each in a worker process; 0 steps every
             environment in this process.
@@ -115,7 +115,7 @@ class InsertionVectorEnv(gym.vector.VectorEnv):
         self.num_envs, self.num_workers = num_envs, num_workers
         # The configured randomization scale (1: the paper's), which a curriculum overrides while it runs.
         self.configured_scale = float((config.get("randomization") or {}).get("scale", 1.0))
-        probe = InsertionEnv(config, seed=seed)
+        probe = TaskEnv(config, seed=seed)
         self.single_observation_space, self.single_action_space = probe.observation_space, probe.action_space
         probe.close()
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, num_envs)

@@ -2,15 +2,24 @@
 
 from __future__ import annotations
 
+from vitac.models.fusion import check_fusion
 from vitac.models.policy import VisuoTactilePolicy
+from vitac.tasks.config import ObservationSpec
 from vitac.utils.instantiate import instantiate
 
 
-def build_policy(encoder, fusion, head, reg, critic, obs_shapes: dict, critic_state_dim: int | None = None):
-    """Each argument is that group's config node; `obs_shapes` maps actor observation keys to shapes."""
+def build_policy(encoder, fusion, head, reg, critic, obs_specs: dict[str, ObservationSpec],
+                 critic_state_dim: int | None = None, obs_name: str | None = None):
+    """Each argument is that group's config node; `obs_specs` are the actor's observations as the task declares
+    them. A fusion whose roles the observations lack is refused first, naming both."""
+    roles = {k: s.role for k, s in obs_specs.items() if s.kind == "image"}
+    check_fusion(fusion["_target_"], roles, obs_name)
+    if reg.get("lambda_sym", 0) and not {"left", "right"} <= set(roles.values()):
+        raise ValueError(f"reg=sym is not allowed with obs={obs_name}: the symmetry prior compares the two pads "
+                         f"(roles ['left', 'right']) and the actor's images are {roles or '(none)'}; use reg=none")
     has_critic = critic is not None and critic.get("_target_") is not None
     return VisuoTactilePolicy(
-        obs_shapes={k: tuple(v) for k, v in obs_shapes.items()},
+        obs_specs=dict(obs_specs),
         image_encoder=instantiate(encoder.image),
         vector_encoder=instantiate(encoder.vector),
         fusion=instantiate(fusion),

@@ -1,28 +1,50 @@
-"""Fusion of the wrist-image and tactile embeddings: naive concat, gated sum, cross-modal transformer."""
+"""Fusion of the image embeddings by role (vision, left, right): naive concat, gated sum, cross-modal transformer.
+
+Each module takes a dict {role: (B, D) embedding} and names the roles it needs in `requires`; a policy whose
+observations lack one is refused by `check_fusion` before anything is built.
+"""
 
 from __future__ import annotations
 
 import torch
 from torch import nn
 
+ROLE_ORDER = ("vision", "left", "right")
+
+
+def check_fusion(fusion_target: str, roles: dict[str, str], obs_name: str | None = None) -> None:
+    """Refuse the fusion module at `fusion_target` when the actor's image observations ({key: role}) lack a role
+    it fuses; called before anything is built."""
+    from vitac.tasks import import_object
+
+    cls = import_object(fusion_target)
+    missing = [role for role in getattr(cls, "requires", ()) if role not in roles.values()]
+    if missing:
+        raise ValueError(f"fusion={getattr(cls, 'config_name', fusion_target)} is not allowed with obs={obs_name}: it "
+                         f"fuses the roles {list(cls.requires)} and the actor's images {roles or '(none)'} lack "
+                         f"{missing} (wrist: vision, tactile_left: left, tactile_right: right); use fusion=naive, "
+                         f"or an obs with every role, e.g. obs=wrist_tactile")
+
 
 class NaiveFusion(nn.Module):
     """Concatenate whatever image embeddings are present, e.g. [vision, left, right] -> 384-d (TacSL)."""
 
     requires = ()
+    config_name = "naive"
 
     def __init__(self, embed_dim: int, num_inputs: int):
         super().__init__()
         self.out_dim = embed_dim * num_inputs
 
-    def forward(self, vision=None, left=None, right=None) -> torch.Tensor:
-        return torch.cat([x for x in (vision, left, right) if x is not None], dim=-1)
+    def forward(self, embeddings: dict) -> torch.Tensor:
+        return torch.cat([embeddings[role] for role in ROLE_ORDER if role in embeddings], dim=-1)
 
 
 class GatedFusion(nn.Module):
     """Per-sample softmax weights over [vision, left, right] and their weighted sum (128-d)."""
 
-    requires = ("wrist", "tactile_left", "tactile_right")
+    requires = ROLE_ORDER
+    config_name = "gated"
 
     def __init__(self, embed_dim: int, num_inputs: int = 3):
         super().__init__()
@@ -30,8 +52,8 @@ class GatedFusion(nn.Module):
         self.out_dim = embed_dim
         self.last_weights = None
 
-    def forward(self, vision, left, right) -> torch.Tensor:
-        tokens = torch.stack([vision, left, right], dim=-2)  # (B, 3, D)
+    def forward(self, embeddings: dict) -> torch.Tensor:
+        tokens = torch.stack([embeddings[role] for role in ROLE_ORDER], dim=-2)  # (B, 3, D)
         weights = torch.softmax(self.gate(tokens.flatten(-2)), dim=-1)  # (B, 3), sums to one
         self.last_weights = weights.detach()
         return (weights.unsqueeze(-1) * tokens).sum(dim=-2)
@@ -47,7 +69,8 @@ class CrossModalTransformer(nn.Module):
         dropout: attention dropout.
     """
 
-    requires = ("wrist", "tactile_left", "tactile_right")
+    requires = ROLE_ORDER
+    config_name = "cmt"
 
     def __init__(self, embed_dim: int, num_inputs: int = 3, num_heads: int = 4, dropout: float = 0.0):
         super().__init__()
@@ -62,7 +85,8 @@ class CrossModalTransformer(nn.Module):
         self.cross_norm = nn.LayerNorm(embed_dim)
         self.out_dim = 2 * embed_dim
 
-    def forward(self, vision, left, right) -> torch.Tensor:
+    def forward(self, embeddings: dict) -> torch.Tensor:
+        vision, left, right = (embeddings[role] for role in ROLE_ORDER)
         tactile = torch.stack([left, right], dim=1) + self.side  # (B, 2, D)
         z_t, _ = self.self_attn(tactile, tactile, tactile, need_weights=False)
         z_t = self.self_norm(tactile + z_t)

@@ -9,16 +9,15 @@ from torch import nn
 
 from vitac.models.normalizer import RunningNormalizer
 from vitac.models.symmetry import SymmetryRegularizer
-
-IMAGE_ROLES = {"wrist": "vision", "tactile_left": "left", "tactile_right": "right"}
-VECTOR_KEYS = ("proprio", "peg_state", "contact_forces")
+from vitac.tasks.config import ObservationSpec
 
 
 class VisuoTactilePolicy(nn.Module):
     """Gaussian recurrent actor-critic over a dict of observations.
 
     Args:
-        obs_shapes: shape of each observation the actor reads (keys of IMAGE_ROLES and VECTOR_KEYS).
+        obs_specs: the observations the actor reads, as the task declares them (images with their fusion
+            role, vectors), in the task's order: images are fused in it, vector features follow in it.
         image_encoder: builds an encoder from an image shape (C, H, W); exposes `out_dim`.
         vector_encoder: builds an encoder from a vector size.
         fusion: builds the fusion module from (embed_dim, num_inputs); exposes `out_dim`, `requires`.
@@ -28,19 +27,21 @@ class VisuoTactilePolicy(nn.Module):
         critic_state_dim: size of the critic state when `critic` is given.
     """
 
-    def __init__(self, obs_shapes: dict, image_encoder: Callable, vector_encoder: Callable, fusion: Callable,
-                 head: Callable, regularizer: SymmetryRegularizer, critic: Callable | None = None,
+    def __init__(self, obs_specs: dict[str, ObservationSpec], image_encoder: Callable, vector_encoder: Callable,
+                 fusion: Callable, head: Callable, regularizer: SymmetryRegularizer, critic: Callable | None = None,
                  critic_state_dim: int | None = None):
         super().__init__()
-        unknown = sorted(set(obs_shapes) - set(IMAGE_ROLES) - set(VECTOR_KEYS))
-        if unknown:
-            raise ValueError(f"obs.keys={sorted(obs_shapes)} is not allowed: {unknown} are not actor observations; "
-                             f"expected keys from {sorted(IMAGE_ROLES) + list(VECTOR_KEYS)}")
-        self.image_keys = [k for k in IMAGE_ROLES if k in obs_shapes]
-        self.vector_keys = [k for k in VECTOR_KEYS if k in obs_shapes]
-        self.encoders = nn.ModuleDict({k: image_encoder(in_shape=tuple(obs_shapes[k])) for k in self.image_keys})
-        self.vector_encoders = nn.ModuleDict({k: vector_encoder(in_dim=int(obs_shapes[k][0])) for k in self.vector_keys})
-        self.normalizers = nn.ModuleDict({k: RunningNormalizer(tuple(obs_shapes[k])) for k in self.vector_keys})
+        critic_only = sorted(k for k, spec in obs_specs.items() if spec.critic_only)
+        if critic_only:
+            raise ValueError(f"obs.modalities={list(obs_specs)} is not allowed: {critic_only} are the critic's "
+                             "observations, not the actor's")
+        self.image_keys = [k for k, spec in obs_specs.items() if spec.kind == "image"]
+        self.vector_keys = [k for k, spec in obs_specs.items() if spec.kind == "vector"]
+        self.roles = {k: obs_specs[k].role for k in self.image_keys}
+        shapes = {k: tuple(spec.shape) for k, spec in obs_specs.items()}
+        self.encoders = nn.ModuleDict({k: image_encoder(in_shape=shapes[k]) for k in self.image_keys})
+        self.vector_encoders = nn.ModuleDict({k: vector_encoder(in_dim=int(shapes[k][0])) for k in self.vector_keys})
+        self.normalizers = nn.ModuleDict({k: RunningNormalizer(shapes[k]) for k in self.vector_keys})
         features = 0
         self.fusion = None
         if self.image_keys:
@@ -48,15 +49,12 @@ class VisuoTactilePolicy(nn.Module):
             if len(embed) != 1:
                 raise ValueError(f"image encoders disagree on embedding size: {embed}")
             self.fusion = fusion(embed_dim=embed.pop(), num_inputs=len(self.image_keys))
-            missing = [k for k in self.fusion.requires if k not in self.image_keys]
-            if missing:
-                raise ValueError(f"fusion={type(self.fusion).__name__} needs observations {list(self.fusion.requires)}; "
-                                 f"obs lacks {missing}: use fusion=naive or an obs with wrist and tactile")
             features += self.fusion.out_dim
         features += sum(self.vector_encoders[k].out_dim for k in self.vector_keys)
         self.head = head(in_dim=features)
         self.regularizer = regularizer
-        self.uses_symmetry = regularizer.active and {"tactile_left", "tactile_right"} <= set(self.image_keys)
+        self.uses_symmetry = regularizer.active and {"left", "right"} <= set(self.roles.values())
+        self._right_key = next((k for k, role in self.roles.items() if role == "right"), None)
         self.critic = None
         if critic is not None:
             self.critic = critic(in_dim=critic_state_dim)
@@ -90,8 +88,8 @@ class VisuoTactilePolicy(nn.Module):
     def _features(self, obs: dict, lead: tuple):
         """Encode (T*B)-flattened observations; returns features (T, B, F) and the image embeddings."""
         flat = lambda x: x.reshape(-1, *x.shape[len(lead):])  # noqa: E731
-        embeddings = {IMAGE_ROLES[k]: self.encoders[k](flat(obs[k])) for k in self.image_keys}
-        parts = [self.fusion(**embeddings)] if self.fusion is not None else []
+        embeddings = {self.roles[k]: self.encoders[k](flat(obs[k])) for k in self.image_keys}
+        parts = [self.fusion(embeddings)] if self.fusion is not None else []
         for k in self.vector_keys:
             parts.append(self.vector_encoders[k](self.normalizers[k](flat(obs[k]).float())))
         return torch.cat(parts, dim=-1).reshape(*lead, -1), embeddings
@@ -112,6 +110,6 @@ class VisuoTactilePolicy(nn.Module):
             return mean, log_std, value, state
         sym = None
         if self.uses_symmetry:
-            right = obs["tactile_right"].reshape(-1, *obs["tactile_right"].shape[len(lead):])
-            sym = self.regularizer.per_sample(embeddings["left"], self.encoders["tactile_right"], right)
+            right = obs[self._right_key].reshape(-1, *obs[self._right_key].shape[len(lead):])
+            sym = self.regularizer.per_sample(embeddings["left"], self.encoders[self._right_key], right)
         return mean, log_std, value, state, sym

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import lightning as L
+from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from tqdm.auto import tqdm
 
@@ -53,7 +54,7 @@ class EvaluationCallback(L.Callback):
             frames, _ = record_episode(env, policy_actor(module.policy), self.seed, every=3)
         finally:
             env.close()
-        path = save_video(frames, self.video_dir / f"iter{iteration:05d}.mp4", every=3)
+        path = save_video(frames, self.video_dir / f"iter_{iteration:05d}.mp4", every=3)
         for logger in trainer.loggers:
             if hasattr(logger, "log_video"):  # WandbLogger
                 logger.log_video("eval/video", [str(path)], step=trainer.global_step)
@@ -67,6 +68,15 @@ class EvaluationCallback(L.Callback):
         # A run stopped by SIGTERM or an error skips teardown; unclosed renderers would be freed after EGL has
         # shut down at exit, each printing an EGL_NOT_INITIALIZED traceback.
         self.teardown(trainer, module, "fit")
+
+
+class BestEvaluation(ModelCheckpoint):
+    """best.ckpt by held-out success: considered only at the iterations that evaluate (the others do not
+    report the metric, and ModelCheckpoint would warn at each of them)."""
+
+    def _save_topk_checkpoint(self, trainer, monitor_candidates):
+        if self.monitor in monitor_candidates:
+            super()._save_topk_checkpoint(trainer, monitor_candidates)
 
 
 class CheckpointOnTermination(L.Callback):

@@ -43,7 +43,7 @@ class PPO(L.LightningModule):
 
     Args:
         policy: the actor-critic.
-        envs: a vector env with `reset`, `step`, `get_state`, `set_state` (InsertionVectorEnv).
+        envs: a vector env with `reset`, `step`, `get_state`, `set_state` (TaskVectorEnv).
         horizon: steps per env per rollout.
         seq_len: BPTT length; the recurrent state is stored at the start of every seq_len chunk.
         minibatch_size: transitions per minibatch (a multiple of seq_len).
@@ -278,4 +278,5 @@ class PPO(L.LightningModule):
         steps = hp["horizon"] * self.envs.num_envs
         metrics["charts/SPS"] = steps / (time.perf_counter() - iteration_start)
         metrics["charts/env_steps"] = float(self.env_steps)
+        metrics["iteration"] = float(self.current_epoch + 1)  # 1-based; names the periodic checkpoints
         self.log_dict(metrics, on_step=False, on_epoch=True)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from dm_control import composer, mjcf
 
-from vitac.envs import collision
-from vitac.sensors.tactile import PegGeometry
+from vitac.sim import collision
+from vitac.sim.tactile import PegGeometry
 
 # TacSL (industreal_asset_info_pegs.yaml): nominal size -> peg and hole cross-sections (m).
 ROUND_PEG_DIAMETER = {8: 0.007986, 12: 0.011983, 16: 0.015983}

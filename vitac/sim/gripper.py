@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from dm_control import composer, mjcf
 
-from vitac.envs import collision
+from vitac.sim import collision
 
 PAD_WIDTH = 0.024  # GelSight R1.5 elastomer, across the finger (m)
 PAD_LENGTH = 0.032  # along the finger (m)

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from vitac.envs import props
-from vitac.envs.insertion import InsertionTask, rotation_vector
+from vitac.sim.poses import rotation_vector
+from vitac.tasks.insertion import props
+from vitac.tasks.insertion.task import InsertionTask
 
 
 class OracleController:
@@ -32,7 +33,7 @@ class OracleController:
 
     def __call__(self, physics) -> np.ndarray:
         task, cfg = self.task, self.task.config
-        peg_body = task._ids["peg_body"]
+        peg_body = task._ids["held_body"]
         peg_pos = physics.data.xpos[peg_body]
         peg_rot = physics.data.xmat[peg_body].reshape(3, 3)
         goal = task.observed_socket_pos(physics) if self.observed_socket else task.socket_pos(physics)

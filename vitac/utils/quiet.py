@@ -1,0 +1,19 @@
+"""A first run prints what vitac says and nothing else: third-party notices that ask nothing of the user go."""
+
+from __future__ import annotations
+
+import logging
+import warnings
+
+
+class _DropTips(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("💡 Tip")
+
+
+def quiet_third_party() -> None:
+    """Drop Lightning's promotional tip and the deprecation warnings libraries raise about each other's APIs
+    (Lightning on torch's pytree, wandb on its own settings); vitac's own warnings stay."""
+    logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropTips())
+    warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
+    warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"(wandb|lightning|torch)\b")
