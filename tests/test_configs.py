@@ -143,41 +143,45 @@ def test_presets_compose_and_name_themselves(preset):
     cfg = compose_config([f"preset={preset}"])
     assert cfg.preset.name == preset
     algo = OmegaConf.to_container(cfg.algo)
-    assert (algo["horizon"] * algo["num_envs"]) % algo["minibatch_size"] == 0
+    assert (algo["horizon"] * cfg.envs.num_envs) % algo["minibatch_size"] == 0
     assert algo["horizon"] % algo["seq_len"] == 0
 
 
-@pytest.mark.parametrize("experiment", sorted(p.stem for p in (Path(CONF) / "experiment").glob("*.yaml")))
+EXPERIMENTS = sorted(str(p.relative_to(Path(CONF) / "experiment").with_suffix("")) for p in
+                     (Path(CONF) / "experiment").glob("*/*.yaml"))
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_experiments_compose_and_build_their_env_and_policy(experiment):
     cfg = compose_config([f"experiment={experiment}"])
     build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 
-def test_shaped_privileged_experiment_extends_the_privileged_one():
-    base, shaped = (compose_config([f"experiment={name}"]) for name in ("results_privileged_cpu", "results_privileged_cpu_shaped"))
-    assert shaped.algo == base.algo and shaped.obs == base.obs  # same budget, curriculum and observations
-    assert (shaped.head.log_std_mode, shaped.task.lateral_reward_scale, shaped.task.success_reward_scale) == ("param", 0.5, 0.1)
+def test_every_table_one_row_has_an_experiment_and_recipes_name_their_row():
+    assert len([e for e in EXPERIMENTS if e.startswith("table1/")]) == 10
+    for experiment in EXPERIMENTS:
+        assert compose_config([f"experiment={experiment}"]).row
 
 
-def test_32env_privileged_experiment_is_the_shaped_one_with_the_overrides_its_documented_run_used():
-    run_overrides = ["algo.lr_schedule=adaptive", "algo.kl_threshold=0.008", "algo.num_envs=32", "algo.horizon=256",
-                     "algo.minibatch_size=2048", "algo.iterations=4000"]
-    as_run = compose_config(["experiment=results_privileged_cpu_shaped", *run_overrides])
-    assert compose_config(["experiment=results_privileged_cpu_32envs"]) == as_run
+def test_privileged_recipe_is_the_setting_its_documented_runs_used():
+    cfg = compose_config(["experiment=recipe/privileged_32envs"])
+    assert (cfg.envs.num_envs, cfg.envs.num_workers, cfg.trainer.iterations) == (32, 2, 2814)  # 23.05 M env steps
+    assert {k: cfg.algo[k] for k in ("horizon", "seq_len", "minibatch_size", "mini_epochs", "lr", "lr_schedule",
+                                    "kl_threshold", "lr_schedule_every", "lr_min", "lr_max")} == dict(
+        horizon=256, seq_len=32, minibatch_size=2048, mini_epochs=4, lr=3e-4, lr_schedule="adaptive",
+        kl_threshold=0.008, lr_schedule_every="minibatch", lr_min=1e-6, lr_max=1e-2)
+    assert (cfg.head.log_std_mode, cfg.head.log_std_bound, cfg.head.log_std_init) == ("param", "sigmoid", -0.5)
+    assert (cfg.task.lateral_reward_scale, cfg.task.success_reward_scale) == (0.5, 0.1)
+    assert (cfg.obs.name, cfg.fusion._target_.rsplit(".", 1)[1], cfg.reg.lambda_sym) == ("privileged", "NaiveFusion", 0.0)
+    assert cfg.curriculum._target_.endswith("RandomizationCurriculum")
 
 
-def test_shaped_cmt_experiment_trains_on_the_reward_of_the_privileged_run_its_critic_comes_from():
+def test_cmt_recipe_is_the_privileged_recipe_with_its_rate_capped_at_the_papers():
     privileged, cmt = (compose_config([f"experiment={name}"])
-                       for name in ("results_privileged_cpu_shaped", "results_cmt_sym_cpu_shaped"))
+                       for name in ("recipe/privileged_32envs", "recipe/cmt_sym_32envs"))
     assert cmt.task == privileged.task and cmt.head == privileged.head  # critic_ckpt values the same reward
-    assert (cmt.obs.name, cmt.fusion._target_.rsplit(".", 1)[1], cmt.reg.lambda_sym) == ("wrist_tactile", "CrossModalTransformer", 1.0)
-
-
-def test_32env_cmt_experiment_is_the_32env_privileged_recipe_with_its_rate_capped_at_the_papers():
-    privileged, cmt = (compose_config([f"experiment={name}"])
-                       for name in ("results_privileged_cpu_32envs", "results_cmt_sym_cpu_32envs"))
-    assert cmt.task == privileged.task and cmt.head == privileged.head  # critic_ckpt values the same reward
-    same = ("num_envs", "horizon", "seq_len", "minibatch_size", "mini_epochs", "lr_schedule", "kl_threshold",
+    assert cmt.envs == privileged.envs and cmt.curriculum == privileged.curriculum
+    same = ("horizon", "seq_len", "minibatch_size", "mini_epochs", "lr_schedule", "kl_threshold",
             "lr_schedule_every", "lr_min")
     assert {key: cmt.algo[key] for key in same} == {key: privileged.algo[key] for key in same}
     assert cmt.algo.lr == cmt.algo.lr_max == 1e-4 < privileged.algo.lr_max

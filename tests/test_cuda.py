@@ -14,8 +14,8 @@ from lightning.pytorch.utilities import move_data_to_device
 from tests.conftest import compose_config
 from tests.test_recurrent_ppo import FakeVectorEnv, _policy
 from tests.test_train import ROOT, SMOKE, _rows
+from vitac.algos.ppo import PPO
 from vitac.evaluate import evaluate, load_policy
-from vitac.rl.ppo import PPO
 from vitac.tasks.insertion.config import InsertionConfig
 from vitac.train import train
 from vitac.viz import policy_actor
@@ -53,14 +53,14 @@ def test_rollout_and_minibatch_losses_on_cuda_agree_with_cpu():
 
 
 def test_cuda_run_trains_evaluates_and_resumes_on_a_machine_without_cuda(tmp_path):
-    gpu = SMOKE + ["trainer.accelerator=gpu", "algo.eval_video_every=0", "logger=csv"]
+    gpu = SMOKE + ["trainer.accelerator=gpu", "eval.video_every=0", "logger=csv"]
     run = train(compose_config(gpu, output_dir=tmp_path / "gpu"))
     rows = [r for r in _rows(run["metrics_csv"]) if r.get("losses/loss")]
     assert len(rows) == 2 and all(np.isfinite(float(r["losses/loss"])) for r in rows)
     assert any(r.get("eval/success_rate") for r in _rows(run["metrics_csv"]))  # evaluation ran on the GPU policy
     # The checkpoint resumes where torch sees no GPU (tensors are read onto the CPU).
     env = dict(os.environ, CUDA_VISIBLE_DEVICES="", PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    resumed = subprocess.run([sys.executable, "-m", "vitac.train", *SMOKE, "algo.iterations=3", "algo.eval_video_every=0",
+    resumed = subprocess.run([sys.executable, "-m", "vitac.train", *SMOKE, "trainer.iterations=3", "eval.video_every=0",
                               "logger=csv", f"resume={tmp_path / 'gpu'}", f"hydra.run.dir={tmp_path / 'cpu'}"],
                              cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-3000:]

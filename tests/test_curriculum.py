@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from vitac.algos.curriculum import RandomizationCurriculum
 from vitac.envs.gym_env import TaskEnv
-from vitac.rl.curriculum import RandomizationCurriculum
 
 
 def test_promotes_only_on_a_full_successful_window_and_stops_at_one():
@@ -22,7 +22,7 @@ def test_promotes_only_on_a_full_successful_window_and_stops_at_one():
 
 
 def test_bad_curriculum_values_are_refused():
-    with pytest.raises(ValueError, match=r"algo\.curriculum\.threshold"):
+    with pytest.raises(ValueError, match=r"curriculum\.threshold"):
         RandomizationCurriculum(threshold=0.0)
 
 

@@ -1,6 +1,6 @@
 """A second task written the way a user adds one: a box part into a box hole, defined only in this file (a config,
 two props and a task on the shared base), trained for one smoke iteration and evaluated, with no change to
-vitac/sim, vitac/rl or the entry points."""
+vitac/sim, vitac/algos or the entry points."""
 
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def test_a_new_task_runs_with_the_shared_robot_and_sensors():
 @pytest.mark.parametrize("obs", ["tactile", "wrist_tactile"])
 def test_a_new_task_trains_one_smoke_iteration_and_evaluates(obs, tmp_path):
     fusion = "cmt" if obs == "wrist_tactile" else "naive"
-    cfg = compose_config(["preset=smoke", f"obs={obs}", f"fusion={fusion}", "reg=sym", "algo.iterations=1"],
+    cfg = compose_config(["preset=smoke", f"obs={obs}", f"fusion={fusion}", "reg=sym", "trainer.iterations=1"],
                          output_dir=tmp_path / "run")
     with open_dict(cfg):
         cfg.task = OmegaConf.create({k: v for k, v in BoxConfig().to_dict().items() if k != "observations"})

@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
-from vitac.rl import losses
-from vitac.rl.lr_schedule import AdaptiveKLSchedule, make_lr_schedule
-from vitac.rl.ppo import make_optimizer
+from vitac.algos import losses
+from vitac.algos.lr_schedule import AdaptiveKLSchedule, make_lr_schedule
+from vitac.algos.ppo import make_optimizer
 
 
 def _gae(rewards, values, next_values, ends, gamma=0.9, lam=0.5):

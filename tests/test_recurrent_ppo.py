@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from tests.conftest import compose_config
+from vitac.algos.buffer import RolloutBuffer, check_batch_layout
+from vitac.algos.losses import gaussian_log_prob
+from vitac.algos.ppo import PPO
 from vitac.models.head import RecurrentActorHead
-from vitac.rl.buffer import RolloutBuffer, check_batch_layout
-from vitac.rl.losses import gaussian_log_prob
-from vitac.rl.ppo import PPO
 from vitac.run_config import build_policy_from_config, task_settings
 from vitac.tasks.insertion.config import InsertionConfig
 
@@ -48,7 +48,7 @@ class FakeVectorEnv:
 
 
 def _policy(critic="state"):
-    cfg = compose_config(["experiment=t1_privileged", f"critic={critic}"])
+    cfg = compose_config(["experiment=table1/privileged", f"critic={critic}"])
     return build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 

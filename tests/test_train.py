@@ -63,9 +63,9 @@ def test_same_seed_same_first_iterations(tmp_path):
 
 
 def test_killed_run_resumes_to_the_same_metrics(tmp_path):
-    full = train(compose_config(SMOKE + ["algo.iterations=3"], output_dir=tmp_path / "full"))
-    train(compose_config(SMOKE + ["algo.iterations=2"], output_dir=tmp_path / "part"))  # "killed" after iteration 2
-    resumed = train(compose_config(SMOKE + ["algo.iterations=3", f"resume={tmp_path / 'part'}"],
+    full = train(compose_config(SMOKE + ["trainer.iterations=3"], output_dir=tmp_path / "full"))
+    train(compose_config(SMOKE + ["trainer.iterations=2"], output_dir=tmp_path / "part"))  # "killed" after iteration 2
+    resumed = train(compose_config(SMOKE + ["trainer.iterations=3", f"resume={tmp_path / 'part'}"],
                                    output_dir=tmp_path / "resumed"))
     (epoch, *full_losses, full_reward), = [row for row in _losses(full) if row[0] == "2"]
     (r_epoch, *resumed_losses, resumed_reward), = _losses(resumed)
@@ -75,7 +75,7 @@ def test_killed_run_resumes_to_the_same_metrics(tmp_path):
     # Weights and optimizer resume; CPU conv kernels are reproducible across processes only to ~1e-6.
     assert [float(x) for x in resumed_losses] == pytest.approx([float(x) for x in full_losses], rel=1e-4, abs=1e-9)
     # The environments split over other processes (here a worker each instead of the main process alone) resume too.
-    split = train(compose_config(SMOKE + ["algo.iterations=3", "algo.num_workers=2", f"resume={tmp_path / 'part'}"],
+    split = train(compose_config(SMOKE + ["trainer.iterations=3", "envs.num_workers=2", f"resume={tmp_path / 'part'}"],
                                  output_dir=tmp_path / "split"))
     (s_epoch, *split_losses, split_reward), = _losses(split)
     assert (s_epoch, split_reward) == (epoch, full_reward)
@@ -85,9 +85,9 @@ def test_killed_run_resumes_to_the_same_metrics(tmp_path):
 def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continues_from_it(tmp_path):
     # No periodic checkpoints: last.ckpt can only come from the SIGTERM. 4 envs in 2 groups: one worker process,
     # which gets the SIGTERM too (as from SLURM or `kill -- -PGID`).
-    args = ["preset=smoke", "experiment=t1_privileged", "algo.num_envs=4", "algo.num_workers=2", "algo.save_every=1000",
-            "algo.eval_every=1000", "logger=csv"]
-    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args, "algo.iterations=500",
+    args = ["preset=smoke", "experiment=table1/privileged", "envs.num_envs=4", "envs.num_workers=2", "checkpoint.every_n_epochs=1000",
+            "eval.every=1000", "logger=csv"]
+    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args, "trainer.iterations=500",
                              f"hydra.run.dir={tmp_path / 'run'}"], cwd=ROOT, stderr=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True, start_new_session=True)
     progress = ""
@@ -98,9 +98,9 @@ def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continu
     saved = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.ckpt")
     done = saved["vitac"]["env_steps"] // (16 * 4)  # iterations of 16 steps x 4 envs
     assert 3 <= done < 500 and "vitac: stopped by SIGTERM" in stdout
-    resumed = train(compose_config(args + [f"algo.iterations={done + 1}", f"resume={tmp_path / 'run'}"],
+    resumed = train(compose_config(args + [f"trainer.iterations={done + 1}", f"resume={tmp_path / 'run'}"],
                                    output_dir=tmp_path / "resumed"))
-    full = train(compose_config(args + [f"algo.iterations={done + 1}"], output_dir=tmp_path / "full"))
+    full = train(compose_config(args + [f"trainer.iterations={done + 1}"], output_dir=tmp_path / "full"))
     (epoch, *_, reward), = _losses(resumed)
     assert epoch == str(done) and reward == [row for row in _losses(full) if row[0] == epoch][0][-1]
 
@@ -108,8 +108,8 @@ def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continu
 def test_sigterm_to_an_image_run_closes_its_evaluation_renderers_before_exit(tmp_path):
     # Its evaluation environments render in the main process; left open, each one's renderer was freed after
     # EGL had shut down at exit and printed an EGL_NOT_INITIALIZED traceback.
-    args = [*SMOKE, "algo.eval_every=1", "algo.eval_video_every=0", "algo.save_every=1000", "logger=csv",
-            "algo.iterations=500", f"hydra.run.dir={tmp_path / 'run'}"]
+    args = [*SMOKE, "eval.every=1", "eval.video_every=0", "checkpoint.every_n_epochs=1000", "logger=csv",
+            "trainer.iterations=500", f"hydra.run.dir={tmp_path / 'run'}"]
     proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args], cwd=ROOT, stderr=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True, start_new_session=True)
     progress = ""
@@ -122,21 +122,21 @@ def test_sigterm_to_an_image_run_closes_its_evaluation_renderers_before_exit(tmp
 
 
 def test_resuming_without_the_curriculum_restores_the_configured_ranges(tmp_path):
-    base = ["preset=smoke", "experiment=t1_privileged", "algo.curriculum.enabled=true", "algo.curriculum.start=0.0"]
-    train(compose_config(base + ["algo.iterations=1"], output_dir=tmp_path / "part"))
+    base = ["preset=smoke", "experiment=table1/privileged", "curriculum=randomization"]  # from scale 0.0
+    train(compose_config(base + ["trainer.iterations=1"], output_dir=tmp_path / "part"))
 
     def env_scales(run_dir, extra):
-        run = train(compose_config(base + ["algo.iterations=2", f"resume={tmp_path / 'part'}"] + extra,
+        run = train(compose_config(base + ["trainer.iterations=2", f"resume={tmp_path / 'part'}"] + extra,
                                    output_dir=run_dir))
         states = load_checkpoint(run["checkpoint"])["vitac"]["env_states"]
         return {s["task"]["randomization_scale"] for s in states}
 
     assert env_scales(tmp_path / "kept", []) == {0.0}  # exact resume keeps the curriculum's stage
-    assert env_scales(tmp_path / "off", ["algo.curriculum.enabled=false"]) == {1.0}
+    assert env_scales(tmp_path / "off", ["curriculum=none"]) == {1.0}
 
 
 def test_init_ckpt_starts_a_new_run_from_another_runs_weights(tmp_path):
-    base = ["preset=smoke", "experiment=t1_privileged", "algo.iterations=1"]
+    base = ["preset=smoke", "experiment=table1/privileged", "trainer.iterations=1"]
     first = train(compose_config(base, output_dir=tmp_path / "first"))
     source = load_checkpoint(first["checkpoint"])["state_dict"]
     warm = train(compose_config(base + ["seed=1", f"init_ckpt={first['checkpoint']}", "init_exclude=[policy.head.log_std]",
@@ -162,9 +162,9 @@ def _warm_started(experiment: str, ckpt: str, tmp_path):
 
 
 def test_init_ckpt_adds_contact_forces_with_zero_weights_so_the_warm_policy_acts_as_the_checkpoint(tmp_path):
-    first = train(compose_config(["preset=smoke", "experiment=t1_privileged", "algo.iterations=2"], output_dir=tmp_path / "first"))
+    first = train(compose_config(["preset=smoke", "experiment=table1/privileged", "trainer.iterations=2"], output_dir=tmp_path / "first"))
     source, _, _ = load_policy(first["checkpoint"])
-    warm, cfg = _warm_started("t1_privileged_contact", first["checkpoint"], tmp_path)
+    warm, cfg = _warm_started("table1/privileged_contact", first["checkpoint"], tmp_path)
     shapes = InsertionConfig.from_dict(task_settings(cfg)).observation_shapes()
     generator = torch.Generator().manual_seed(0)
     obs = {k: 3 * torch.randn(5, 4, *shapes[k], generator=generator) for k in ("proprio", "peg_state", "contact_forces",
@@ -184,15 +184,15 @@ def test_init_ckpt_adds_contact_forces_with_zero_weights_so_the_warm_policy_acts
     assert weight.grad[:, added].abs().sum() > 0
     # A warm start that changes which observations come first is refused, naming the checkpoint.
     with pytest.raises(ValueError, match="init_ckpt=.*does not fit this policy"):
-        _warm_started("t1_fusion_naive", first["checkpoint"], tmp_path)
+        _warm_started("table1/fusion_naive", first["checkpoint"], tmp_path)
     # And a training run goes on from it.
-    run = train(compose_config(["preset=smoke", "experiment=t1_privileged_contact", "algo.iterations=1",
+    run = train(compose_config(["preset=smoke", "experiment=table1/privileged_contact", "trainer.iterations=1",
                                 f"init_ckpt={first['checkpoint']}"], output_dir=tmp_path / "warm_run"))
     assert Path(run["checkpoint"]).is_file()
 
 
 def test_adaptive_lr_schedule_steps_after_every_minibatch_or_at_its_boundary_and_fixed_keeps_lr(tmp_path):
-    base = ["preset=smoke", "experiment=t1_privileged"]
+    base = ["preset=smoke", "experiment=table1/privileged"]
     lr = compose_config(base).algo.lr
     steps = 2 * 2  # smoke: 2 mini-epochs of 2 minibatches per iteration
     # With a threshold no KL comes near, the rate grows by 1.5 at every minibatch step (its other branches:
@@ -439,7 +439,7 @@ def test_resume_without_checkpoint_fails_clearly(tmp_path):
                                            ("gpu", r"trainer.accelerator='gpu' is not allowed here: torch sees no CUDA")])
 def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, value, pattern):
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
-    monkeypatch.setattr("vitac.train.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
     with pytest.raises(ValueError, match=pattern):
         train(compose_config(SMOKE + [f"trainer.accelerator={value}"], output_dir=tmp_path / "x"))
 
@@ -452,8 +452,8 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
     ("algo.clip=0", r"algo\.clip=0 is not allowed: expected a number > 0"),
     ("algo.lr=-1", r"algo\.lr=-1 is not allowed: expected a number > 0"),
     ("algo.critic_coef=-2", r"algo\.critic_coef=-2 is not allowed: expected a number >= 0"),
-    ("algo.iterations=0", r"algo\.iterations=0 is not allowed: expected a positive integer"),
-    ("algo.num_workers=3", r"algo\.num_workers=3 is not allowed: expected 0 or a divisor of algo\.num_envs=2"),
+    ("trainer.iterations=0", r"trainer\.iterations=0 is not allowed: expected a positive integer"),
+    ("envs.num_workers=3", r"envs\.num_workers=3 is not allowed: expected 0 or a divisor of envs\.num_envs=2"),
     ("algo.normalize_input=maybe", r"algo\.normalize_input='maybe' is not allowed: expected true or false"),
     ("algo.horizon=12", r"algo\.horizon=12 is not allowed: expected a multiple of algo\.seq_len"),
     ("algo.lr_min=0", r"algo\.lr_min=0 is not allowed: expected a number > 0"),
@@ -461,11 +461,11 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
                                                    r"\[algo\.lr_min, algo\.lr_max\] = \[1e-06, 1e-05\]"),
     ("seed=abc", r"seed='abc' is not allowed: expected an integer or null"),
     ("trainer.update_threads=0", r"trainer\.update_threads=0 is not allowed: expected a positive integer or auto"),
-    ("algo.num_workers=many", r"algo\.num_workers='many' is not allowed: expected an integer >= 0 or auto"),
+    ("envs.num_workers=many", r"envs\.num_workers='many' is not allowed: expected an integer >= 0 or auto"),
     ("trainer.deterministic=maybe", r"trainer\.deterministic='maybe' is not allowed: expected true or false"),
 ])
 def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
-    monkeypatch.setattr("vitac.train.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
     monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(ValueError, match=pattern):
         train(compose_config(SMOKE + override.split(), output_dir=tmp_path / "x"))
@@ -482,7 +482,7 @@ def test_auto_workers_take_the_largest_divisor_of_the_envs_within_the_usable_cor
 
 
 def test_train_and_evaluate_run_their_environments_in_the_auto_groups(tmp_path, monkeypatch):
-    smoke = ["preset=smoke", "experiment=t1_privileged"]
+    smoke = ["preset=smoke", "experiment=table1/privileged"]
     ckpt = train(compose_config(smoke, output_dir=tmp_path / "run"))["checkpoint"]
     monkeypatch.setattr("vitac.utils.checks.usable_cores", lambda: 3)
     built = []
@@ -491,10 +491,10 @@ def test_train_and_evaluate_run_their_environments_in_the_auto_groups(tmp_path, 
         built.append(kwargs["num_workers"])
         raise RuntimeError("stop")
 
-    monkeypatch.setattr("vitac.train.TaskVectorEnv", capture)
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", capture)
     monkeypatch.setattr("vitac.evaluate.TaskVectorEnv", capture)
     with pytest.raises(RuntimeError, match="stop"):
-        train(compose_config(smoke + ["algo.num_envs=6", "algo.num_workers=auto", "trainer.update_threads=auto"],
+        train(compose_config(smoke + ["envs.num_envs=6", "envs.num_workers=auto", "trainer.update_threads=auto"],
                              output_dir=tmp_path / "auto"))
     with pytest.raises(RuntimeError, match="stop"):
         evaluate(ckpt, episodes=4, num_envs=4, num_workers="auto", seed=0)
@@ -515,25 +515,37 @@ def test_bad_evaluation_arguments_are_refused_before_the_checkpoint_is_read(monk
 
 
 def test_resume_that_cannot_continue_exactly_is_refused_before_any_environment_is_built(tmp_path, monkeypatch):
-    smoke = ["preset=smoke", "experiment=t1_privileged"]
+    smoke = ["preset=smoke", "experiment=table1/privileged"]
     train(compose_config(smoke, output_dir=tmp_path / "run"))
-    monkeypatch.setattr("vitac.train.TaskVectorEnv", lambda *a, **k: pytest.fail("environments built"))
-    with pytest.raises(ValueError, match=r"algo\.num_envs=4 is not allowed with resume=.*holds the states of 2 "
-                                         r"environments; resume with algo\.num_envs=2, or .* init_ckpt="):
-        train(compose_config(smoke + ["algo.num_envs=4", f"resume={tmp_path / 'run'}"], output_dir=tmp_path / "a"))
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("environments built"))
+    with pytest.raises(ValueError, match=r"envs\.num_envs=4 is not allowed with resume=.*holds the states of 2 "
+                                         r"environments; resume with envs\.num_envs=2, or .* init_ckpt="):
+        train(compose_config(smoke + ["envs.num_envs=4", f"resume={tmp_path / 'run'}"], output_dir=tmp_path / "a"))
     with pytest.raises(ValueError, match=r"does not fit this policy: \d+ tensors differ .*policy\.normalizers\.contact"
                                          r".*set differently from the checkpoint's: \['obs'\]"):
-        train(compose_config(["preset=smoke", "experiment=t1_privileged_contact", f"resume={tmp_path / 'run'}"],
+        train(compose_config(["preset=smoke", "experiment=table1/privileged_contact", f"resume={tmp_path / 'run'}"],
                              output_dir=tmp_path / "b"))
 
 
 def test_every_algo_key_has_its_check():
-    from vitac.rl import hyperparameters as h
+    from vitac.algos import run_checks as c
 
-    by_components = {"lr_schedule", "kl_threshold", "lr_schedule_every", "lr_min", "lr_max", "curriculum"}  # their constructors
-    checked = (set(h.POSITIVE_INTS + h.POSITIVE_NUMBERS + h.NON_NEGATIVE_NUMBERS + h.FRACTIONS + h.FLAGS)
-               | {"num_envs", "num_workers", "eval_video_every"} | by_components)
-    assert set(compose_config([]).algo) == checked
+    checked = set(c.POSITIVE_INTS + c.POSITIVE_NUMBERS + c.NON_NEGATIVE_NUMBERS + c.FRACTIONS + c.FLAGS + c.SCHEDULE)
+    assert set(compose_config([]).algo) - {"_target_", "_partial_"} == checked
+
+
+@pytest.mark.parametrize("override,pattern", [
+    ("eval.every=0", r"eval\.every=0 is not allowed: expected a positive integer"),
+    ("eval.episodes=-1", r"eval\.episodes=-1 is not allowed"),
+    ("eval.video_every=-1", r"eval\.video_every=-1 is not allowed"),
+    ("checkpoint.every_n_epochs=0", r"checkpoint\.every_n_epochs=0 is not allowed"),
+    ("curriculum=randomization curriculum.step=0", r"curriculum\.step=0 is not allowed"),
+    ("envs.step_in_main=maybe", r"envs\.step_in_main='maybe' is not allowed"),
+])
+def test_bad_run_group_values_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    with pytest.raises(ValueError, match=pattern):
+        train(compose_config(SMOKE + override.split(), output_dir=tmp_path / "x"))
 
 
 def test_evaluate_reports_success_with_interval(tmp_path, capfd):
@@ -595,7 +607,7 @@ def test_corrupt_checkpoint_is_refused(tmp_path):
 
 
 def test_critic_from_a_privileged_run(tmp_path):
-    privileged = train(compose_config(["preset=smoke", "experiment=t1_privileged"], output_dir=tmp_path / "priv"))
+    privileged = train(compose_config(["preset=smoke", "experiment=table1/privileged"], output_dir=tmp_path / "priv"))
     run = train(compose_config(SMOKE + [f"critic_ckpt={privileged['checkpoint']}", "freeze_critic=true"],
                                output_dir=tmp_path / "aacd"))
     import torch
@@ -612,7 +624,7 @@ def test_multirun_over_seeds_and_every_experiment(tmp_path):
            f"hydra.sweep.dir={tmp_path}/sweep"]
     subprocess.run(cmd, check=True, timeout=600)
     assert len(list((tmp_path / "sweep").rglob("last.ckpt"))) == 2
-    cmd = [sys.executable, "-m", "vitac.train", "-m", "preset=smoke", "experiment=glob(t1_*)",
+    cmd = [sys.executable, "-m", "vitac.train", "-m", "preset=smoke", "experiment=glob(table1/*)",
            f"hydra.sweep.dir={tmp_path}/experiments"]
     subprocess.run(cmd, check=True, timeout=1200)
 

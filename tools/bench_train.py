@@ -25,23 +25,23 @@ from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 CONFIGS = {"privileged": ["obs=privileged"],
-           "privileged_workers_only": ["obs=privileged", "algo.step_in_main=false"],
+           "privileged_workers_only": ["obs=privileged", "envs.step_in_main=false"],
            "privileged_horizon128": ["obs=privileged", "algo.horizon=128", "algo.minibatch_size=512"],
            # The rollout and minibatch of the 93.7% segment of docs/results.md, and the same 8,192-transition
            # iteration from twice the environments.
            "privileged_horizon512": ["obs=privileged", "algo.horizon=512", "algo.minibatch_size=2048"],
-           "privileged_32envs_horizon256": ["obs=privileged", "algo.num_envs=32", "algo.horizon=256",
+           "privileged_32envs_horizon256": ["obs=privileged", "envs.num_envs=32", "algo.horizon=256",
                                             "algo.minibatch_size=2048"],
            "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"],
-           "wrist_tactile_cmt_sym_workers_only": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo.step_in_main=false"],
+           "wrist_tactile_cmt_sym_workers_only": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "envs.step_in_main=false"],
            "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "encoder.image.bf16=false"]}
 
 
 def run(name: str, overrides: list, iterations: int) -> dict:
     GlobalHydra.instance().clear()
     with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
-        cfg = compose("config", overrides=overrides + ["logger=csv", f"algo.iterations={iterations}",
-                                                         "algo.eval_every=100000", "algo.save_every=100000"])
+        cfg = compose("config", overrides=overrides + ["logger=csv", f"trainer.iterations={iterations}",
+                                                         "eval.every=100000", "checkpoint.every_n_epochs=100000"])
     with tempfile.TemporaryDirectory() as out, open_dict(cfg):
         cfg.output_dir = out
         result = train(cfg)
@@ -49,8 +49,8 @@ def run(name: str, overrides: list, iterations: int) -> dict:
             rows = [r for r in csv.DictReader(f) if r.get("charts/SPS")]
     sps = [float(r["charts/SPS"]) for r in rows[1:]]
     rollout = [float(r["charts/rollout_SPS"]) for r in rows[1:]]
-    return dict(config=name, overrides=overrides, preset=cfg.preset.name, num_envs=cfg.algo.num_envs,
-                workers=cfg.algo.num_workers, iterations=iterations, env_steps_per_s=statistics.median(sps),
+    return dict(config=name, overrides=overrides, preset=cfg.preset.name, num_envs=cfg.envs.num_envs,
+                workers=cfg.envs.num_workers, iterations=iterations, env_steps_per_s=statistics.median(sps),
                 rollout_env_steps_per_s=statistics.median(rollout))
 
 

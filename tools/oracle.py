@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from vitac.algos.evaluation import summarize
 from vitac.envs.gym_env import TaskEnv
-from vitac.rl.evaluation import summarize
 from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 

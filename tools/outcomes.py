@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vitac.rl.evaluation import wilson_interval
+from vitac.algos.evaluation import wilson_interval
 from vitac.utils.cli import stop_quietly_when_the_reader_closes
 from vitac.utils.records import read_whole
 

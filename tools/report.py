@@ -3,7 +3,7 @@
     python tools/report.py outputs/multirun/2026-11-25/10-00-00 [--out docs/report]
 
 Scans the given directories for runs (a `config.yaml` beside `csv/metrics.csv`), groups them by their
-Table I row (`row`, set by conf/experiment/t1_*.yaml; otherwise obs/fusion/reg), and reports the final
+Table I row (`row`, set by conf/experiment/table1/*.yaml; otherwise obs/fusion/reg), and reports the final
 held-out success rate (mean +- std over seeds; `vitac.evaluate` JSON reports next to the checkpoint win
 over the training-time evaluation), steps to succeed, and the paper's number beside each row. Figures:
 learning curves (evaluation success and reward per step against env steps) and the paper's

@@ -15,8 +15,8 @@ import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from vitac.algos.evaluation import run_episodes
 from vitac.envs.vector_env import TaskVectorEnv
-from vitac.rl.evaluation import run_episodes
 from vitac.run_config import build_policy_from_config, task_settings
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import load_checkpoint

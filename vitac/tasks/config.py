@@ -34,7 +34,7 @@ class GraspRandomization:
     """Per-episode ranges [low, high] a task samples; `enabled: false` uses the midpoints.
 
     `scale` shrinks every range about its midpoint (1 is the paper's randomization); a training
-    curriculum raises it towards 1 (see `algo.curriculum`).
+    curriculum raises it towards 1 (`curriculum=randomization`).
     """
 
     enabled: bool = True

@@ -38,7 +38,7 @@ def usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def check_groups(num_envs: int, num_workers: int, prefix: str = "algo.") -> None:
+def check_groups(num_envs: int, num_workers: int, prefix: str = "envs.") -> None:
     """Environments split into equal worker groups."""
     check_int(f"{prefix}num_envs", num_envs, 1)
     if not is_int(num_workers) or num_workers < 0:
@@ -47,7 +47,7 @@ def check_groups(num_envs: int, num_workers: int, prefix: str = "algo.") -> None
         refuse(f"{prefix}num_workers", num_workers, f"0 or a divisor of {prefix}num_envs={num_envs}")
 
 
-def resolve_groups(num_envs: int, num_workers, prefix: str = "algo.") -> int:
+def resolve_groups(num_envs: int, num_workers, prefix: str = "envs.") -> int:
     """`num_workers` checked, or for `auto` the most environment groups the usable cores step at once: the
     largest divisor of `num_envs` not above them (the same trajectories for any split; only the speed differs)."""
     if num_workers == "auto":

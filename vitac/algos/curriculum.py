@@ -19,13 +19,13 @@ class RandomizationCurriculum:
 
     def __init__(self, start: float = 0.0, step: float = 0.1, threshold: float = 0.7, window: int = 32):
         if not 0.0 <= start <= 1.0:
-            raise ValueError(f"algo.curriculum.start={start!r} is not allowed: expected a number in [0, 1]")
+            raise ValueError(f"curriculum.start={start!r} is not allowed: expected a number in [0, 1]")
         if not 0.0 < step <= 1.0:
-            raise ValueError(f"algo.curriculum.step={step!r} is not allowed: expected a number in (0, 1]")
+            raise ValueError(f"curriculum.step={step!r} is not allowed: expected a number in (0, 1]")
         if not 0.0 < threshold <= 1.0:
-            raise ValueError(f"algo.curriculum.threshold={threshold!r} is not allowed: expected a number in (0, 1]")
+            raise ValueError(f"curriculum.threshold={threshold!r} is not allowed: expected a number in (0, 1]")
         if window < 1:
-            raise ValueError(f"algo.curriculum.window={window!r} is not allowed: expected a positive integer")
+            raise ValueError(f"curriculum.window={window!r} is not allowed: expected a positive integer")
         self.scale, self.step, self.threshold = float(start), float(step), float(threshold)
         self.recent: deque = deque(maxlen=window)
 

@@ -1,21 +1,17 @@
-"""Recurrent PPO as a LightningModule (manual optimization): one training step = rollout + update."""
+"""Recurrent PPO on the shared rollout loop: GAE and the clipped update (the loop is `rollout.RolloutAlgorithm`)."""
 
 from __future__ import annotations
 
-import time
-
-import lightning as L
-import numpy as np
 import torch
 from lightning.pytorch.utilities import move_data_to_device
-from torch.utils.data import DataLoader, Dataset
 
+from vitac.algos import losses
+from vitac.algos.buffer import check_batch_layout
+from vitac.algos.curriculum import RandomizationCurriculum
+from vitac.algos.lr_schedule import make_lr_schedule
+from vitac.algos.rollout import RolloutAlgorithm
 from vitac.models.normalizer import RunningNormalizer
 from vitac.models.policy import VisuoTactilePolicy
-from vitac.rl import losses
-from vitac.rl.buffer import RolloutBuffer, check_batch_layout
-from vitac.rl.curriculum import RandomizationCurriculum
-from vitac.rl.lr_schedule import AdaptiveKLSchedule
 
 
 def make_optimizer(params, lr: float) -> torch.optim.Adam:
@@ -24,22 +20,12 @@ def make_optimizer(params, lr: float) -> torch.optim.Adam:
     return torch.optim.Adam(params, lr=lr, eps=1e-5, fused=True)
 
 
-class _OneItem(Dataset):
-    """Lightning needs a dataloader; each epoch is one PPO iteration."""
-
-    def __len__(self):
-        return 1
-
-    def __getitem__(self, i):
-        return torch.zeros(())
-
-
-class PPO(L.LightningModule):
+class PPO(RolloutAlgorithm):
     """Rollouts from a vector env, GAE, clipped surrogate + clipped value + bounds + entropy + symmetry terms.
 
-    The policy, its normalizers and the update run on the module's device (Lightning's accelerator); the
-    environments, the rollout buffer, GAE and the action noise stay on the CPU, so a run draws the same
-    noise on either device and its checkpoints load anywhere.
+    The rollout loop, resume and curriculum are the shared `RolloutAlgorithm`'s; PPO samples the action from the
+    policy's Gaussian, bootstraps truncated episodes from their final observation, computes GAE and updates. The
+    update runs on the module's device; GAE and the action noise stay on the CPU.
 
     Args:
         policy: the actor-critic.
@@ -55,9 +41,9 @@ class PPO(L.LightningModule):
         rollout_threads, update_threads: torch threads while collecting and while updating.
         run_config: the resolved run config, stored in checkpoints so evaluation can rebuild the policy.
         curriculum: optional schedule of the training envs' randomization scale.
-        lr_schedule: optional adaptive learning rate (rl_games' `adaptive`), moved after every minibatch step,
-            mini-epoch or iteration (its `every`); None keeps `lr` fixed (TacSL's actor). The current rate is
-            saved in checkpoints with the optimizer.
+        lr_schedule: "fixed" keeps `lr` (TacSL's actor); "adaptive" is rl_games' KL-adaptive rate (`kl_threshold`),
+            moved after every minibatch step, mini-epoch or iteration (`lr_schedule_every`) within [lr_min, lr_max].
+            The current rate is saved in checkpoints with the optimizer.
     """
 
     def __init__(self, policy: VisuoTactilePolicy, envs, horizon: int = 512, seq_len: int = 128,
@@ -67,75 +53,25 @@ class PPO(L.LightningModule):
                  normalize_input: bool = True, normalize_value: bool = True, normalize_advantage: bool = True,
                  freeze_critic: bool = False, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
                  run_config: dict | None = None, curriculum: RandomizationCurriculum | None = None,
-                 lr_schedule: AdaptiveKLSchedule | None = None):
-        super().__init__()
+                 lr_schedule: str = "fixed", kl_threshold: float = 0.008, lr_schedule_every: str = "minibatch",
+                 lr_min: float = 1e-6, lr_max: float = 1e-2):
+        super().__init__(policy, envs, horizon, seq_len, seed, rollout_threads, update_threads, run_config, curriculum)
         check_batch_layout(horizon, envs.num_envs, seq_len, minibatch_size)
-        self.automatic_optimization = False
-        self.policy, self.envs = policy, envs
         self.value_normalizer = RunningNormalizer((), clip=float("inf"))
         self.hp = dict(horizon=horizon, seq_len=seq_len, minibatch_size=minibatch_size, mini_epochs=mini_epochs,
                        lr=lr, gamma=gamma, gae_lambda=gae_lambda, clip=clip, critic_coef=critic_coef,
                        clip_value=clip_value, grad_norm=grad_norm, entropy_coef=entropy_coef,
                        bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
-        self.run_config = run_config
-        self.curriculum = curriculum
-        self.lr_schedule = lr_schedule
-        self.rollout_threads, self.update_threads = rollout_threads, update_threads
+        self.lr_schedule = make_lr_schedule(lr_schedule, kl_threshold, lr_schedule_every, lr_min, lr_max, lr)
         if freeze_critic and policy.critic is not None:
             policy.critic.requires_grad_(False)
-        self.buffer = RolloutBuffer(horizon, envs.num_envs, seq_len)
-        # All of PPO's randomness (action noise, minibatch order) comes from this generator, saved in
-        # checkpoints: Lightning's dataloader draws from the global RNG, which would break exact resume.
-        self.generator = torch.Generator().manual_seed(seed)
-        self.env_steps = 0
-        self._obs = None  # current observation (numpy dict), LSTM state and episode-start flags
-        self._restored = None
-
-    # --------------------------------------------------------------------------- lightning plumbing
-    def train_dataloader(self):
-        return DataLoader(_OneItem(), batch_size=None)
 
     def configure_optimizers(self):
         params = [p for p in self.policy.parameters() if p.requires_grad]
         return make_optimizer(params, self.hp["lr"])
 
-    def on_train_start(self):
-        n = self.envs.num_envs
-        if self._restored is not None:  # exact resume: environments, recurrent state and flags
-            r = self._restored
-            self._obs = self.envs.set_state(r["env_states"])
-            self._state = tuple(s.to(self.device) for s in r["lstm_state"])
-            self._starts = r["starts"]
-            self.env_steps = r["env_steps"]
-            self.generator.set_state(r["generator"])
-            if self.curriculum is not None:
-                self.curriculum.load_state_dict(r["curriculum"])
-            elif r["curriculum"] is not None:  # curriculum switched off on resume: the configured ranges from
-                self.envs.set_randomization_scale(self.envs.configured_scale)  # each env's next episode on
-            self._restored = None
-        elif self._obs is None:
-            if self.curriculum is not None:
-                self.envs.set_randomization_scale(self.curriculum.scale)
-            self._obs, _ = self.envs.reset(seed=None)
-            self._state = self.policy.initial_state(n, self.device)
-            self._starts = torch.ones(n)
-
-    def on_save_checkpoint(self, checkpoint):
-        checkpoint["vitac_config"] = self.run_config
-        checkpoint["vitac"] = dict(env_states=self.envs.get_state(), lstm_state=tuple(s.cpu() for s in self._state),
-                                   starts=self._starts,
-                                   env_steps=self.env_steps, generator=self.generator.get_state(),
-                                   curriculum=self.curriculum.state_dict() if self.curriculum else None)
-
-    def on_load_checkpoint(self, checkpoint):
-        self._restored = checkpoint.get("vitac")
-
     # ----------------------------------------------------------------------------------- rollout
-    @staticmethod
-    def _to_torch(obs: dict) -> dict:
-        return {k: torch.as_tensor(v) for k, v in obs.items()}
-
     @torch.no_grad()
     def _value(self, obs: dict, state, starts) -> torch.Tensor:
         """Raw-scale value (on the CPU) of one step of observations (B, ...)."""
@@ -147,60 +83,30 @@ class PPO(L.LightningModule):
         """Network value -> return scale (the network predicts normalized returns when normalize_value)."""
         return self.value_normalizer.denormalize(value) if self.hp["normalize_value"] else value
 
-    @torch.no_grad()
-    def collect_rollout(self) -> dict:
+    def act(self, t, obs, mean, log_std, value):
+        buf = self.buffer
+        action = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
+        buf.log_probs[t] = losses.gaussian_log_prob(action, mean, log_std)
+        buf.values[t] = self._raw(value).cpu()
+        return action
+
+    def after_env_step(self, t, info, terminated, next_state):
+        # Truncations bootstrap from the final observation, valued with the pre-reset recurrent state.
+        bootstrap = torch.zeros(self.envs.num_envs)
+        for i, final in info["final_obs"].items():
+            if not terminated[i]:
+                sub_state = (next_state[0][:, i:i + 1], next_state[1][:, i:i + 1])
+                final_t = {k: torch.as_tensor(v)[None] for k, v in final.items()}
+                bootstrap[i] = self._value(final_t, sub_state, torch.zeros(1))[0]
+        self.buffer.next_values[t] = bootstrap  # mid-episode entries are filled from values[t + 1] below
+
+    def finish_rollout(self, obs):
         buf, hp = self.buffer, self.hp
-        obs = self._to_torch(self._obs)
-        if not buf.obs:
-            buf.allocate(obs, self.envs.single_action_space.shape[0])
-        successes, steps_to_success = [], []
-        start_time = time.perf_counter()
-        for t in range(hp["horizon"]):
-            if t % hp["seq_len"] == 0:
-                buf.chunk_states[t // hp["seq_len"]] = (self._state[0].cpu().clone(), self._state[1].cpu().clone())
-            inputs, starts = self.policy.step_inputs(obs, self._starts)
-            mean, log_std, value, next_state = self.policy(inputs, self._state, starts)
-            mean, log_std, value = mean[0].cpu(), log_std[0].cpu(), self._raw(value[0]).cpu()
-            action = mean + log_std.exp() * torch.randn(mean.shape, generator=self.generator)
-            for k, v in obs.items():
-                buf.obs[k][t] = v
-            buf.actions[t], buf.starts[t] = action, self._starts
-            buf.log_probs[t] = losses.gaussian_log_prob(action, mean, log_std)
-            buf.values[t] = value
-            next_obs, reward, terminated, truncated, info = self.envs.step(action.clamp(-1.0, 1.0).numpy())
-            ended = torch.as_tensor(terminated | truncated, dtype=torch.float32)
-            buf.rewards[t], buf.ends[t] = torch.as_tensor(reward), ended
-            # Truncations bootstrap from the final observation, valued with the pre-reset recurrent state.
-            bootstrap = torch.zeros(self.envs.num_envs)
-            for i, final in info["final_obs"].items():
-                if not terminated[i]:
-                    sub_state = (next_state[0][:, i:i + 1], next_state[1][:, i:i + 1])
-                    final_t = {k: torch.as_tensor(v)[None] for k, v in final.items()}
-                    bootstrap[i] = self._value(final_t, sub_state, torch.zeros(1))[0]
-                env_info = info["env_infos"][i]
-                successes.append(float(env_info["success"]))
-                if env_info["steps_to_success"] >= 0:
-                    steps_to_success.append(env_info["steps_to_success"])
-            buf.next_values[t] = bootstrap  # mid-episode entries are filled from values[t + 1] below
-            self._obs, obs = next_obs, self._to_torch(next_obs)
-            self._state, self._starts = next_state, ended
         last_value = self._value(obs, self._state, self._starts)
         following = torch.cat([buf.values[1:], last_value[None]], dim=0)
         buf.next_values = torch.where(buf.ends.bool(), buf.next_values, following)
         buf.advantages, buf.returns = losses.gae(buf.rewards, buf.values, buf.next_values, buf.ends,
                                                  hp["gamma"], hp["gae_lambda"])
-        steps = hp["horizon"] * self.envs.num_envs
-        self.env_steps += steps
-        rollout_time = time.perf_counter() - start_time
-        curriculum = {}
-        if self.curriculum is not None:
-            if self.curriculum.observe(successes):  # applies from each env's next episode
-                self.envs.set_randomization_scale(self.curriculum.scale)
-            curriculum["charts/randomization_scale"] = self.curriculum.scale
-        return curriculum | {"charts/rollout_SPS": steps / rollout_time, "charts/episodes": len(successes),
-                "charts/success_rate": float(np.mean(successes)) if successes else float("nan"),
-                "charts/steps_to_success": float(np.mean(steps_to_success)) if steps_to_success else float("nan"),
-                "charts/reward_per_step": float(buf.rewards.mean())}
 
     # ------------------------------------------------------------------------------------ update
     def minibatch_losses(self, mb: dict) -> dict:
@@ -233,14 +139,8 @@ class PPO(L.LightningModule):
         for group in optimizer.param_groups:
             group["lr"] = lr
 
-    def training_step(self, batch, batch_idx):
-        hp = self.hp
-        iteration_start = time.perf_counter()
-        self.policy.eval()
-        torch.set_num_threads(self.rollout_threads)  # the env workers need the other cores while collecting
-        metrics = self.collect_rollout()
-        torch.set_num_threads(self.update_threads)
-        self.policy.train()
+    def update(self) -> dict:
+        hp, metrics = self.hp, {}
         if hp["normalize_value"]:
             self.value_normalizer.update(self.buffer.returns)
         optimizer = self.optimizers()
@@ -275,8 +175,4 @@ class PPO(L.LightningModule):
         metrics["charts/lr"] = self._lr(optimizer)
         values, returns = self.buffer.values.flatten(), self.buffer.returns.flatten()
         metrics["losses/explained_variance"] = losses.explained_variance(values, returns)
-        steps = hp["horizon"] * self.envs.num_envs
-        metrics["charts/SPS"] = steps / (time.perf_counter() - iteration_start)
-        metrics["charts/env_steps"] = float(self.env_steps)
-        metrics["iteration"] = float(self.current_epoch + 1)  # 1-based; names the periodic checkpoints
-        self.log_dict(metrics, on_step=False, on_epoch=True)
+        return metrics

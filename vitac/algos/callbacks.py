@@ -7,7 +7,7 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from tqdm.auto import tqdm
 
-from vitac.rl.evaluation import run_episodes
+from vitac.algos.evaluation import run_episodes
 from vitac.viz import policy_actor, record_episode, save_video
 
 

@@ -1,0 +1,72 @@
+"""A training run's values, checked before anything is built or simulated: the `algo`, `envs`, `eval`,
+`checkpoint`, `curriculum` and `trainer` groups and the seed. Each refusal names the key, the value and what
+is allowed. `vitac.evaluate` checks its own keys with the same helpers (`vitac/utils/checks.py`)."""
+
+from __future__ import annotations
+
+from vitac.algos.buffer import check_batch_layout
+from vitac.algos.curriculum import RandomizationCurriculum
+from vitac.algos.lr_schedule import make_lr_schedule
+from vitac.utils.checks import (
+    check_flag,
+    check_int,
+    is_int,
+    is_number,
+    refuse,
+    resolve_groups,
+    resolve_threads,
+)
+
+# PPO's keys (conf/algo/ppo.yaml) by kind; the schedule's are checked by building it.
+POSITIVE_INTS = ("horizon", "seq_len", "minibatch_size", "mini_epochs")
+POSITIVE_NUMBERS = ("lr", "clip", "grad_norm")
+NON_NEGATIVE_NUMBERS = ("critic_coef", "entropy_coef", "bounds_loss_coef")
+FRACTIONS = ("gamma", "gae_lambda")  # in [0, 1]
+FLAGS = ("clip_value", "normalize_input", "normalize_value", "normalize_advantage")
+SCHEDULE = ("lr_schedule", "kl_threshold", "lr_schedule_every", "lr_min", "lr_max")
+
+
+def check_ppo(algo: dict, num_envs: int) -> None:
+    """Refuse any out-of-range value of conf/algo/ppo.yaml (as composed), with its key."""
+    for name in POSITIVE_INTS:
+        check_int(f"algo.{name}", algo[name], 1)
+    for name in POSITIVE_NUMBERS:
+        if not is_number(algo[name]) or not algo[name] > 0:
+            refuse(f"algo.{name}", algo[name], "a number > 0")
+    for name in NON_NEGATIVE_NUMBERS:
+        if not is_number(algo[name]) or algo[name] < 0:
+            refuse(f"algo.{name}", algo[name], "a number >= 0")
+    for name in FRACTIONS:
+        if not is_number(algo[name]) or not 0 <= algo[name] <= 1:
+            refuse(f"algo.{name}", algo[name], "a number in [0, 1]")
+    for name in FLAGS:
+        check_flag(f"algo.{name}", algo[name])
+    make_lr_schedule(*(algo[name] for name in SCHEDULE), algo["lr"])
+    check_batch_layout(algo["horizon"], num_envs, algo["seq_len"], algo["minibatch_size"])
+
+
+def check_run(cfg: dict) -> dict:
+    """Every group a training run builds from, checked; returns `envs` with `num_workers: auto` resolved."""
+    seed = cfg["seed"]
+    if seed is not None and not is_int(seed):
+        refuse("seed", seed, "an integer or null")
+    envs = dict(cfg["envs"])
+    envs["num_workers"] = resolve_groups(envs["num_envs"], envs["num_workers"], prefix="envs.")
+    check_flag("envs.step_in_main", envs["step_in_main"])
+    check_ppo(cfg["algo"], envs["num_envs"])
+    check_int("trainer.iterations", cfg["trainer"]["iterations"], 1)
+    check_int("eval.every", cfg["eval"]["every"], 1)
+    check_int("eval.episodes", cfg["eval"]["episodes"], 1)
+    check_int("eval.video_every", cfg["eval"]["video_every"], 0)
+    check_int("checkpoint.every_n_epochs", cfg["checkpoint"]["every_n_epochs"], 1)
+    curriculum = {k: v for k, v in cfg["curriculum"].items() if k != "_target_"}
+    if cfg["curriculum"].get("_target_"):
+        RandomizationCurriculum(**curriculum)  # its constructor refuses a bad value by key
+    return envs
+
+
+def resolve_trainer_threads(rollout_threads, update_threads, deterministic) -> tuple[int, int]:
+    """The rollout and update thread counts, `auto` resolved to the usable cores."""
+    check_flag("trainer.deterministic", deterministic)
+    return (resolve_threads("trainer.rollout_threads", rollout_threads),
+            resolve_threads("trainer.update_threads", update_threads))

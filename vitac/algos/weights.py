@@ -1,0 +1,96 @@
+"""Starting a run from checkpoints: the exact-resume check, a warm start from another run's weights, and the
+critic of a privileged run (TacSL's AACD)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import torch
+
+from vitac.utils.checkpoint import load_checkpoint
+
+log = logging.getLogger(__name__)
+
+POLICY_GROUPS = ("obs", "encoder", "fusion", "head", "reg", "critic")
+
+
+def check_resume(run_dir: str, policy, num_envs: int, config: dict) -> Path:
+    """The checkpoint an exact resume of `run_dir` continues from. Its weights must fit this policy and its
+    environment states `num_envs`: refused before any environment is built otherwise, pointing to init_ckpt
+    (a warm start). `config` is this run's resolved config, compared group by group in the message."""
+    path = Path(run_dir) / "checkpoints" / "last.ckpt"
+    if not path.is_file():
+        raise FileNotFoundError(f"resume={run_dir!r}: no checkpoint at {path}")
+    checkpoint = load_checkpoint(path, key="resume")
+    saved_envs = len(checkpoint["vitac"]["env_states"])
+    if saved_envs != num_envs:
+        raise ValueError(f"envs.num_envs={num_envs} is not allowed with resume={run_dir!r}: its checkpoint "
+                         f"holds the states of {saved_envs} environments; resume with envs.num_envs={saved_envs}, "
+                         f"or start a new run from its weights with init_ckpt={path}")
+    own = {f"policy.{k}": tuple(v.shape) for k, v in policy.state_dict().items()}
+    saved = {k: tuple(v.shape) for k, v in checkpoint["state_dict"].items() if k.startswith("policy.")}
+    if own != saved:
+        differ = sorted(k for k in own.keys() | saved.keys() if own.get(k) != saved.get(k))
+        groups = [g for g in POLICY_GROUPS if config.get(g) != checkpoint["vitac_config"].get(g)]
+        raise ValueError(f"resume={run_dir!r} does not fit this policy: {len(differ)} tensors differ in name or "
+                         f"shape ({differ[:3]}); config groups set differently from the checkpoint's: {groups}. "
+                         f"Resume with the checkpoint's settings, or start a new run from its weights with "
+                         f"init_ckpt={path}")
+    return path
+
+
+FEATURE_INPUT = "policy.head.lstm.weight_ih_l0"  # the only layer that reads the fused features
+
+
+def load_weights(module, path: str, exclude: list) -> None:
+    """Warm start: every tensor of another run's checkpoint except those under an `exclude` prefix.
+
+    When this policy reads vector observations that the checkpoint's did not (e.g. obs=privileged_contact
+    from an obs=privileged run), their columns of the feature input layer start at zero and their
+    encoders and normalizers fresh: the policy acts exactly as the checkpoint's until PPO learns to use them.
+    """
+    checkpoint = load_checkpoint(path, key="init_ckpt")
+    state = checkpoint["state_dict"]
+    own = module.state_dict()
+    picked = {k: v for k, v in state.items() if not any(k.startswith(prefix) for prefix in exclude)}
+    if FEATURE_INPUT in picked and picked[FEATURE_INPUT].shape[1] < own[FEATURE_INPUT].shape[1]:
+        picked[FEATURE_INPUT] = _widen_feature_input(module.policy, picked[FEATURE_INPUT],
+                                                     checkpoint["vitac_config"]["obs"]["modalities"], path)
+    mismatched = [k for k, v in picked.items() if k not in own or own[k].shape != v.shape]
+    if mismatched:
+        raise ValueError(f"init_ckpt={path!r} does not fit this policy: {mismatched[:5]} differ in name or shape")
+    module.load_state_dict(picked, strict=False)
+    log.info("weights from %s (%d tensors; left out: %s)", path, len(picked), sorted(set(state) - set(picked)))
+
+
+def _widen_feature_input(policy, weight: torch.Tensor, old_modalities: list, path: str) -> torch.Tensor:
+    """The checkpoint's feature-input weights with zero columns for the observations it did not read."""
+    old_vectors = [k for k in policy.vector_keys if k in old_modalities]
+    old_images = [k for k in policy.image_keys if k in old_modalities]
+    dropped = set(old_modalities) - set(old_vectors) - set(old_images)
+    added = policy.vector_keys[len(old_vectors):]
+    # Vector features come last, in the task's order: only added vector observations append columns.
+    if (dropped or old_images != policy.image_keys or policy.vector_keys[:len(old_vectors)] != old_vectors
+            or not added):
+        raise ValueError(f"init_ckpt={path!r} does not fit this policy: it read {sorted(old_modalities)}; a warm "
+                         f"start may only add vector observations after those, not change them "
+                         f"(this policy reads {policy.image_keys + policy.vector_keys})")
+    widened = torch.zeros(weight.shape[0], policy.feature_dim, dtype=weight.dtype)
+    widened[:, :weight.shape[1]] = weight
+    log.info("init_ckpt: %s enter the policy with zero weights", added)
+    return widened
+
+
+def load_critic(module, path: str) -> None:
+    """TacSL's AACD: start the asymmetric critic (and its input normalizer) from another run's checkpoint."""
+    if module.policy.critic is None:
+        raise ValueError(f"critic_ckpt={path!r} needs an asymmetric critic: set critic=state")
+    state = load_checkpoint(path, key="critic_ckpt")["state_dict"]
+    prefixes = ("policy.critic.", "policy.critic_normalizer.", "value_normalizer.")
+    picked = {k: v for k, v in state.items() if k.startswith(prefixes)}
+    if not picked:
+        raise ValueError(f"critic_ckpt={path!r} holds no critic weights")
+    missing = module.load_state_dict(picked, strict=False)
+    log.info("critic loaded from %s (%d tensors, %d other keys untouched)", path, len(picked),
+             len(missing.missing_keys))
