@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 from dataclasses import asdict
@@ -514,3 +515,15 @@ def test_contact_forces_are_the_last_substeps_solve_and_a_fresh_one_after_reset(
     assert np.linalg.norm(observed[0]) > 0.1  # the socket pushes on the peg
     np.testing.assert_allclose(observed, last_solve, rtol=1e-5, atol=1e-6)
     e.close()
+
+
+def test_evaluate_runs_the_scripted_oracle_and_random_actions_on_any_task_settings(tmp_path):
+    from vitac.evaluate import evaluate_scripted
+
+    oracle = evaluate_scripted("oracle", {"peg_size": 12}, episodes=2, seed=3, out=tmp_path / "o.json")
+    assert oracle["success_rate"] == 1.0 and oracle["outcomes"] == {"inserted": 2}
+    assert json.loads((tmp_path / "o.json").read_text())["policy"] == "oracle"
+    random = evaluate_scripted("random", {}, episodes=1, seed=3, out=tmp_path / "r.json")
+    assert random["success_rate"] == 0.0 and len(random["final_state"]) == 1
+    with pytest.raises(ValueError, match=r"policy='scripted' is not allowed: expected one of \['ckpt', 'oracle', 'random'\]"):
+        evaluate_scripted("scripted", {}, episodes=1, seed=0, out=tmp_path / "x.json")

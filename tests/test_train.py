@@ -209,28 +209,28 @@ def test_adaptive_lr_schedule_steps_after_every_minibatch_or_at_its_boundary_and
     fixed = train(compose_config(base, output_dir=tmp_path / "f"))
     assert [float(r["charts/lr"]) for r in _rows(fixed["metrics_csv"]) if r.get("charts/lr")] == pytest.approx([lr, lr])
     # The learning curves of one branch with the other overlaid, the KL and learning-rate panel included.
-    subprocess.run([sys.executable, "tools/plot_run.py", run["metrics_csv"], "--compare", fixed["metrics_csv"],
+    subprocess.run([sys.executable, "-m", "vitac.runs", "plot", run["metrics_csv"], "--compare", fixed["metrics_csv"],
                     "--out", str(tmp_path / "curves.png")], check=True, cwd=ROOT, capture_output=True)
     assert (tmp_path / "curves.png").stat().st_size > 10_000
     with pytest.raises(ValueError, match="algo.lr_schedule='cosine' is not allowed"):
         train(compose_config(base + ["algo.lr_schedule=cosine"], output_dir=tmp_path / "bad"))
 
 
-def _tool(name: str):
-    """A script of tools/ as a module (tools/ is not a package)."""
-    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
+def _benchmark(name: str):
+    """A script of benchmarks/ as a module (benchmarks/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 def test_benchmark_records_carry_the_command_that_reproduces_them(tmp_path, monkeypatch):
-    monkeypatch.setattr(sys, "argv", ["/somewhere/tools/bench_train.py", "--only", "privileged", "algo.lr=1e-5"])
+    monkeypatch.setattr(sys, "argv", ["/somewhere/benchmarks/bench_train.py", "--only", "privileged", "algo.lr=1e-5"])
     monkeypatch.setattr("vitac.utils.records.describe_cpu", lambda: {"model": "some CPU", "cores": 2, "bfloat16": []})
     write_record(tmp_path / "new" / "record.json", rows=[{"env_steps_per_s": 1.0}], threads=2)
     assert json.loads((tmp_path / "new" / "record.json").read_text()) == {
         "rows": [{"env_steps_per_s": 1.0}], "threads": 2,
-        "command": "python tools/bench_train.py --only privileged algo.lr=1e-5",
+        "command": "python benchmarks/bench_train.py --only privileged algo.lr=1e-5",
         "cpu": {"model": "some CPU", "cores": 2, "bfloat16": []}}
 
 
@@ -267,7 +267,7 @@ def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tm
                                      "reg: {lambda_sym: 0.0}\npreset: {name: smoke}\nseed: 0\n")
     (run / "csv" / "metrics.csv").write_text("charts/env_steps,eval/success_rate\n1000,0.5\n")
     (run / "checkpoints" / "last.eval.json").write_text('{"episodes": 100, "success_rate": 0.9')
-    result = subprocess.run([sys.executable, "tools/report.py", str(tmp_path / "runs"), "--out", str(tmp_path / "out")],
+    result = subprocess.run([sys.executable, "-m", "vitac.report", str(tmp_path / "runs"), "--out", str(tmp_path / "out")],
                             cwd=ROOT, capture_output=True, text=True)
     assert result.returncode != 0 and "last.eval.json: cannot be read (JSONDecodeError" in result.stderr
     assert not (tmp_path / "out" / "table1.md").exists()
@@ -276,7 +276,7 @@ def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tm
 def test_bench_physics_meter_counts_every_substep_and_restores_the_methods_it_patches():
     from vitac.tasks.insertion.task import InsertionTask
 
-    bench = _tool("bench_physics")
+    bench = _benchmark("bench_physics")
     original_step, original_forces = InsertionTask.step_physics, InsertionTask._contact_forces
     env = TaskEnv({"observations": bench.OBSERVATIONS}, seed=0)
     env.reset(seed=0)
@@ -297,7 +297,7 @@ def test_bench_physics_meter_counts_every_substep_and_restores_the_methods_it_pa
 def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
     import mujoco
 
-    bench = _tool("bench_physics")
+    bench = _benchmark("bench_physics")
     env = TaskEnv({"observations": bench.OBSERVATIONS}, seed=0)
     env.reset(seed=0)
     meter = bench.PhysicsMeter(bench.parse_options(["cone=0", "tolerance=1e-6"]), bench.parse_disable(["MULTICCD"]))
@@ -316,7 +316,7 @@ def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
 
 
 def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_resumed_one_where_it_is(tmp_path):
-    plot_run = _tool("plot_run")
+    from vitac.analysis import curves as plot_run
 
     def write(name, steps):
         path = tmp_path / name
@@ -331,15 +331,15 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
     assert [float(r["charts/env_steps"]) for r in rows] == [100, 200, 300, 400] and starts == [300]
     with pytest.raises(SystemExit, match="no rows up to 50 env steps"):
         plot_run.read_segments([first], max_steps=50)
-    # tools/run_summary.py reads segments the same way; the figures docs/results.md quotes for one segment:
-    summary = subprocess.run([sys.executable, "tools/run_summary.py",
+    # `vitac.runs summary` reads segments the same way; the figures docs/results.md quotes for one segment:
+    summary = subprocess.run([sys.executable, "-m", "vitac.runs", "summary",
                               "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
                              capture_output=True, text=True).stdout.splitlines()
     assert summary[0] == "env steps: 9,576,448 -> 10,496,000 (450 iterations)"
     assert summary[1] == "median env steps/s: 1028"
     assert "overall 75%" in summary[5]
     assert summary[-2].startswith("learning rate range: ") and summary[-1].startswith("explained variance: first ")
-    cut = subprocess.run([sys.executable, "tools/run_summary.py", "--max-steps", "1e7",
+    cut = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", "--max-steps", "1e7",
                           "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
                          capture_output=True, text=True).stdout.splitlines()
     assert cut[0] == "env steps: 9,576,448 -> 9,998,336 (207 iterations)"  # 2,048 env steps an iteration
@@ -349,31 +349,33 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
     older = tmp_path / "older.csv"
     older.write_text("charts/env_steps,charts/SPS,losses/loss,losses/approx_kl,losses/entropy,charts/success_rate\n"
                      "1000,900,0.1,0.02,3.0,0.25\n2000,1100,0.1,0.04,2.9,0.75\n")
-    summary = subprocess.run([sys.executable, "tools/run_summary.py", str(older)], check=True, cwd=ROOT,
+    summary = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", str(older)], check=True, cwd=ROOT,
                              capture_output=True, text=True).stdout.splitlines()
     assert summary[:2] == ["env steps: 1,000 -> 2,000 (2 iterations)", "median env steps/s: 1000"]
     assert summary[2] == "learning rate: not logged by this run (an older version)"
     assert summary[-1] == "explained variance: not logged by this run (an older version)"
     foreign = tmp_path / "foreign.csv"
     foreign.write_text("a,b\n1,2\n")
-    result = subprocess.run([sys.executable, "tools/run_summary.py", str(foreign)], cwd=ROOT, capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", str(foreign)], cwd=ROOT, capture_output=True, text=True)
     assert result.returncode != 0 and "not a vitac metrics CSV" in result.stderr
 
 
 @pytest.mark.parametrize("command,message", [
-    (["bench_train", "--iterations", "1"], "argument --iterations: 1 is not allowed: expected an integer >= 2"),
-    (["oracle", "--episodes", "0"], "argument --episodes: 0 is not allowed: expected an integer >= 1"),
-    (["bench_env", "--steps", "many"], "argument --steps: 'many' is not an integer"),
-    (["run_summary", "x.csv", "--window", "0"], "argument --window: 0.0 is not allowed: expected a number > 0"),
+    (["benchmarks/bench_train.py", "--iterations", "1"], "argument --iterations: 1 is not allowed: expected an integer >= 2"),
+    (["-m", "vitac.runs", "log-std", "x.ckpt", "--episodes", "0"],
+     "argument --episodes: 0 is not allowed: expected an integer >= 1"),
+    (["benchmarks/bench_env.py", "--steps", "many"], "argument --steps: 'many' is not an integer"),
+    (["-m", "vitac.runs", "summary", "x.csv", "--window", "0"],
+     "argument --window: 0.0 is not allowed: expected a number > 0"),
 ])
 def test_tools_refuse_a_count_out_of_range_naming_the_flag_before_any_work(command, message):
-    result = subprocess.run([sys.executable, f"tools/{command[0]}.py", *command[1:]], cwd=ROOT, capture_output=True,
-                            text=True, timeout=120)
+    result = subprocess.run([sys.executable, *command], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and message in result.stderr and result.stdout == ""
 
 
 def test_plot_and_summary_tools_refuse_a_file_that_is_not_a_metrics_csv_naming_it(tmp_path):
-    read_segments = _tool("plot_run").read_segments
+    from vitac.analysis.curves import read_segments
+
     good = tmp_path / "good.csv"
     good.write_text("charts/env_steps,charts/success_rate\n1000,0.5\n")
     foreign, header_only, binary = tmp_path / "foreign.csv", tmp_path / "header.csv", tmp_path / "binary.csv"
@@ -384,7 +386,7 @@ def test_plot_and_summary_tools_refuse_a_file_that_is_not_a_metrics_csv_naming_i
                         (binary, "cannot be read as a metrics CSV"), (tmp_path / "missing.csv", "cannot be read")):
         with pytest.raises(SystemExit, match=f"{bad.name}: .*{reason}"):
             read_segments([good, bad])  # the bad one named, even after a good segment
-    plot = subprocess.run([sys.executable, "tools/plot_run.py", str(foreign), "--out", str(tmp_path / "p.png")],
+    plot = subprocess.run([sys.executable, "-m", "vitac.runs", "plot", str(foreign), "--out", str(tmp_path / "p.png")],
                           cwd=ROOT, capture_output=True, text=True)
     assert plot.returncode != 0 and "not a vitac metrics CSV" in plot.stderr and not (tmp_path / "p.png").exists()
 
@@ -395,13 +397,13 @@ def test_outcomes_refuses_a_truncated_or_foreign_report_before_printing_anything
     foreign.write_text('{"rows": []}')
     for bad, reason in ((truncated, "cannot be read as a vitac.evaluate report"),
                         (foreign, "not a vitac.evaluate report")):
-        result = subprocess.run([sys.executable, "tools/outcomes.py", str(bad)], cwd=ROOT, capture_output=True, text=True)
+        result = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(bad)], cwd=ROOT, capture_output=True, text=True)
         assert result.returncode != 0 and f"{bad.name}: {reason}" in result.stderr and result.stdout == ""
 
 
 @pytest.mark.parametrize("args", [
-    ["tools/run_summary.py", "docs/data/results/privileged_32envs_seed1_metrics.csv"],
-    ["tools/outcomes.py", "docs/data/results/privileged_32envs_seed1_eval_paper.json"],
+    ["-m", "vitac.runs", "summary", "docs/data/results/privileged_32envs_seed1_metrics.csv"],
+    ["-m", "vitac.runs", "outcomes", "docs/data/results/privileged_32envs_seed1_eval_paper.json"],
 ])
 def test_printing_tools_stop_quietly_when_their_reader_has_gone(args):
     # `tool ... | head`: the reader closes early. Here it is gone before the tool writes at all.
@@ -416,7 +418,8 @@ def test_printing_tools_stop_quietly_when_their_reader_has_gone(args):
 
 
 def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_others():
-    pooled = _tool("outcomes").pooled
+    from vitac.analysis.outcomes import pooled
+
     setting = dict(ckpt="run/last.ckpt", randomization_scale=1.0, socket_obs_noise=0.005, randomize_only=None,
                    policy="deterministic")
     first = dict(setting, seed=2000000, episodes=100, success_rate=0.9)
@@ -560,21 +563,23 @@ def test_evaluate_reports_success_with_interval(tmp_path, capfd):
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
     assert report["socket_obs_noise"] == 0.005
     assert sum(report["outcomes"].values()) == 2 and len(report["final_state"]) == 2
-    table = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json")], check=True, cwd=ROOT,
+    table = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "e.json")], check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout
     assert sum(int(line.split("|")[3]) for line in table.splitlines()[2:]) == 2
-    same = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json"), str(tmp_path / "e.json"),
+    same = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "e.json"), str(tmp_path / "e.json"),
                            "--paired"], check=True, cwd=ROOT, capture_output=True, text=True).stdout
     assert same.splitlines()[-1] == "paired: inserted only by e: 0, only by e: 0, exact McNemar two-sided p = 1.000"
     # 5 vs 17 discordant episodes: 2 * sum_{k<=5} C(22, k) / 2^22 = 2 * 35,443 / 4,194,304.
-    assert _tool("outcomes").mcnemar_exact(5, 17) == pytest.approx(2 * 35443 / 2 ** 22)
-    spread = subprocess.run([sys.executable, "tools/log_std.py", run["checkpoint"], "--episodes", "1"], check=True,
+    from vitac.analysis.outcomes import mcnemar_exact
+
+    assert mcnemar_exact(5, 17) == pytest.approx(2 * 35443 / 2 ** 22)
+    spread = subprocess.run([sys.executable, "-m", "vitac.runs", "log-std", run["checkpoint"], "--episodes", "1"], check=True,
                             cwd=ROOT, capture_output=True, text=True).stdout
     assert "past head.log_std_max=1.0: 0.0% (bound: clamp)" in spread  # a fresh policy's log-std starts at 0
     noiseless = evaluate(run["checkpoint"], episodes=2, num_envs=2, num_workers=0, seed=5, out=str(tmp_path / "n.json"),
                          socket_obs_noise=0.0)
     assert noiseless["socket_obs_noise"] == 0.0
-    refused = subprocess.run([sys.executable, "tools/outcomes.py", str(tmp_path / "e.json"), str(tmp_path / "n.json"),
+    refused = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "e.json"), str(tmp_path / "n.json"),
                               "--paired"], cwd=ROOT, capture_output=True, text=True)
     assert refused.returncode != 0 and "not the same episodes (['socket_obs_noise'] differ)" in refused.stderr
     with pytest.raises(ValueError, match="socket_obs_noise"):
@@ -591,8 +596,8 @@ def test_evaluate_reports_success_with_interval(tmp_path, capfd):
     distances = [r["final_keypoint_distance_mm"] for r in [report] + sampled]
     assert sampled[0]["policy"] == "stochastic" and report["policy"] == "deterministic"
     assert distances[1] == distances[2] and distances[1] != distances[0]
-    # tools/report.py turns run directories into Table I rows and figures.
-    subprocess.run([sys.executable, "tools/report.py", str(tmp_path / "run"), "--out", str(tmp_path / "report")],
+    # `vitac.report` turns run directories into Table I rows and figures.
+    subprocess.run([sys.executable, "-m", "vitac.report", str(tmp_path / "run"), "--out", str(tmp_path / "report")],
                    check=True, cwd=ROOT, capture_output=True)
     table = (tmp_path / "report" / "table1.md").read_text()
     assert "wrist_tactile / CrossModalTransformer" in table and "| smoke | 1 |" in table

@@ -1,4 +1,5 @@
-"""Evaluate a checkpoint: `python -m vitac.evaluate ckpt=outputs/.../checkpoints/last.ckpt [episodes=100]`.
+"""Evaluate a policy: `python -m vitac.evaluate ckpt=outputs/.../checkpoints/last.ckpt [episodes=100]`, or the task's
+scripted oracle or uniform random actions: `python -m vitac.evaluate policy=oracle|random [task.peg_size=8]`.
 
 Prints (and writes next to the checkpoint) a JSON report: success rate with its 95% Wilson interval
 and the steps-to-succeed distribution, on held-out seeded episodes with the deterministic policy (the
@@ -12,15 +13,20 @@ import logging
 from pathlib import Path
 
 import hydra
+import numpy as np
 import torch
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
+from tqdm.auto import tqdm
 
-from vitac.algos.evaluation import run_episodes
+from vitac.algos.evaluation import run_episodes, summarize
+from vitac.envs.gym_env import TaskEnv
 from vitac.envs.vector_env import TaskVectorEnv
 from vitac.run_config import build_policy_from_config, task_settings
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import load_checkpoint
-from vitac.utils.checks import check_flag, check_int, resolve_groups
+from vitac.utils.checks import check_flag, check_int, refuse, resolve_groups
+from vitac.utils.quiet import quiet_third_party
 from vitac.utils.records import write_json
 
 log = logging.getLogger(__name__)
@@ -78,25 +84,71 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
                   socket_obs_noise=settings["randomization"].get("socket_obs_noise"),
                   randomize_only=list(randomize_only) if randomize_only is not None else None,
                   policy="deterministic" if deterministic else "stochastic",
-                  **{k: v for k, v in summary.items() if k != "episodes_detail"},
-                  final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]],
-                  # How each episode ended, as the task's outcome() reports it (SI units: m, rad).
-                  final_state=[{k: round(v, 6) if isinstance(v, float) else v for k, v in e.items()
-                                if k not in ("success", "steps_to_success", "keypoint_distance")}
-                               for e in summary["episodes_detail"]])
+                  **episode_statistics(summary))
     only = "" if randomize_only is None else ".only-" + "-".join(randomize_only)
     target = Path(out) if out else Path(ckpt).with_suffix(f".eval{only}.json")
     write_json(target, report)
     return report
 
 
+def episode_statistics(summary: dict) -> dict:
+    """The report's success statistics and how each episode ended, as the task's outcome() reports it (m, rad)."""
+    return dict(**{k: v for k, v in summary.items() if k != "episodes_detail"},
+                final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]],
+                final_state=[{k: round(v, 6) if isinstance(v, float) else v for k, v in e.items()
+                              if k not in ("success", "steps_to_success", "keypoint_distance")}
+                             for e in summary["episodes_detail"]])
+
+
+def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out: str | Path,
+                      oracle_options: dict | None = None) -> dict:
+    """Success statistics of the task's scripted oracle (it reads the true state: the proof that physics,
+    clearance and success check agree) or of uniform random actions, on episodes seeded seed, seed + 1, ..."""
+    if policy not in ("oracle", "random"):
+        refuse("policy", policy, "one of ['ckpt', 'oracle', 'random']")
+    check_int("episodes", episodes, 1)
+    check_int("seed", seed, 0)
+    task_config = make_task_config(settings)
+    # One cheap observation: a scripted controller reads the physics, not the observations.
+    task_config.observations = [next(k for k, s in task_config.observation_specs().items() if s.kind == "vector")]
+    env = TaskEnv(task_config, seed=seed)
+    rng = np.random.default_rng(seed)
+    results = []
+    try:
+        for episode in tqdm(range(episodes), desc=policy, unit="ep"):
+            if policy == "oracle":
+                info = env.run_oracle_episode(seed=seed + episode, **(oracle_options or {}))
+            else:
+                env.reset(seed=seed + episode)
+                done = False
+                while not done:
+                    _, _, terminated, truncated, info = env.step(rng.uniform(-1.0, 1.0, env.action_space.shape))
+                    done = terminated or truncated
+            results.append(info)
+    finally:
+        env.close()
+    report = dict(policy=policy, oracle_options=dict(oracle_options or {}), seed=seed,
+                  randomization_scale=task_config.randomization.scale, **episode_statistics(summarize(results)))
+    write_json(Path(out), report)
+    return report
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
-    if not cfg.ckpt:
-        raise ValueError("ckpt=None is not allowed: pass ckpt=<run dir>/checkpoints/last.ckpt")
-    report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
-                      cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only,
-                      cfg.step_in_main)
+    quiet_third_party()
+    if cfg.policy != "ckpt":
+        out = cfg.out or Path(HydraConfig.get().runtime.output_dir) / f"{cfg.policy}.eval.json"
+        settings = OmegaConf.to_container(cfg.task, resolve=True)
+        report = evaluate_scripted(cfg.policy, settings, cfg.episodes, cfg.seed, out,
+                                   OmegaConf.to_container(cfg.oracle_options))
+        print(f"report: {out}")
+    elif not cfg.ckpt:
+        raise ValueError("ckpt=None is not allowed with policy=ckpt: pass ckpt=<run dir>/checkpoints/last.ckpt, "
+                         "or policy=oracle or policy=random")
+    else:
+        report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
+                          cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only,
+                          cfg.step_in_main)
     print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm", "final_state")},
                      indent=2))
 

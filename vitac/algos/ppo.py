@@ -16,7 +16,7 @@ from vitac.models.policy import VisuoTactilePolicy
 
 def make_optimizer(params, lr: float) -> torch.optim.Adam:
     """PPO's optimizer: Adam with rl_games' eps, fused into one kernel over every parameter (about 4x faster
-    per step than torch's default on CPU, tools/bench_optimizer.py; the same arithmetic)."""
+    per step than torch's default on CPU, benchmarks/bench_optimizer.py; the same arithmetic)."""
     return torch.optim.Adam(params, lr=lr, eps=1e-5, fused=True)
 
 

@@ -50,9 +50,9 @@ def describe_cpu(cpuinfo: Path = Path("/proc/cpuinfo")) -> dict:
 
 
 def write_record(path: Path, **fields) -> None:
-    """Write `fields` plus `command` (this process's command line, as a tool in tools/ is run) and `cpu`
-    (describe_cpu) to `path`."""
-    command = " ".join([f"python tools/{Path(sys.argv[0]).name}", *sys.argv[1:]])
+    """Write `fields` plus `command` (this process's command line, as a benchmark in benchmarks/ is run) and
+    `cpu` (describe_cpu) to `path`."""
+    command = " ".join([f"python benchmarks/{Path(sys.argv[0]).name}", *sys.argv[1:]])
     write_json(path, dict(fields, command=command, cpu=describe_cpu()))
 
 

@@ -2,7 +2,7 @@
 exploration noise stuck past the bound (where a hard clamp passes no gradient)? With `head.log_std_mode`
 param or fixed, the log-std is one value per action dimension and is printed as it is.
 
-    python tools/log_std.py <run>/checkpoints/last.ckpt [--episodes 3]
+    python -m vitac.runs log-std <run>/checkpoints/last.ckpt [--episodes 3]
 
 Prints the 5th, 50th and 95th percentile per action dimension and the fraction past `head.log_std_max`.
 """
@@ -19,12 +19,12 @@ from vitac.evaluate import load_policy
 from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
 
 
-def main():
+def main(argv=None):
     stop_quietly_when_the_reader_closes()
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m vitac.runs log-std", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("ckpt")
     parser.add_argument("--episodes", type=int_at_least(1), default=3)
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     torch.set_num_threads(1)
     policy, cfg, settings = load_policy(args.ckpt)
     policy.eval()
@@ -51,6 +51,3 @@ def main():
     print(f"past head.log_std_max={cfg.head.log_std_max}: {float((values > cfg.head.log_std_max).mean()):.1%} "
           f"(bound: {cfg.head.get('log_std_bound', 'clamp')})")
 
-
-if __name__ == "__main__":
-    main()

@@ -1,6 +1,6 @@
 """The paper's computation table for the whole policy (encoders + fusion + LSTM head), naive / gated / CMT.
 
-    python tools/bench_policy.py [--passes 1000] [--threads 2] [--json docs/data/bench_policy.json]
+    python benchmarks/bench_policy.py [--passes 1000] [--threads 2] [--json docs/data/bench_policy.json]
 
 Latency: mean of `passes` single-step forward passes (inference mode) after warm-up, batch 1 and 256; throughput
 = 1000 / latency (ms). Memory: parameters + buffers, plus the peak memory torch allocates during one

@@ -2,10 +2,10 @@
 scale, held-out evaluation success, reward per step and PPO's step size (approximate KL per iteration and
 learning rate), all against env steps.
 
-    python tools/plot_run.py outputs/2026-11-25/10-00-00/csv/metrics.csv --out curves.png [--title ...]
+    python -m vitac.runs plot outputs/2026-11-25/10-00-00/csv/metrics.csv --out curves.png [--title ...]
         [--baseline other/metrics.csv --baseline-label "..."]
-    python tools/plot_run.py first/csv/metrics.csv resumed/csv/metrics.csv --out curves.png   # one run, resumed
-    python tools/plot_run.py seed1/csv/metrics.csv --compare seed0/csv/metrics.csv --max-steps 8e6 --out c.png
+    python -m vitac.runs plot first/csv/metrics.csv resumed/csv/metrics.csv --out curves.png   # one run, resumed
+    python -m vitac.runs plot seed1/csv/metrics.csv --compare seed0/csv/metrics.csv --max-steps 8e6 --out c.png
 
 Several CSVs are one run's segments (a run resumed into another directory, or warm-started from the previous
 segment's last checkpoint with init_ckpt), in order; a vertical line marks where each later segment starts.
@@ -72,8 +72,8 @@ def smooth(points, window: int):
             for i in range(len(points))]
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m vitac.runs plot", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--title", default="")
@@ -83,7 +83,7 @@ def main():
     parser.add_argument("--compare-label", default="other run")
     parser.add_argument("--max-steps", type=number_above(0), default=None,
                         help="plot every run up to this many env steps (compare at one budget)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -138,6 +138,3 @@ def main():
     fig.savefig(args.out, dpi=100)
     print(f"wrote {args.out}")
 
-
-if __name__ == "__main__":
-    main()

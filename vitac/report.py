@@ -1,6 +1,6 @@
 """Table I (markdown + LaTeX) and figures from your own runs.
 
-    python tools/report.py outputs/multirun/2026-11-25/10-00-00 [--out docs/report]
+    python -m vitac.report outputs/multirun/2026-11-25/10-00-00 [--out docs/report]
 
 Scans the given directories for runs (a `config.yaml` beside `csv/metrics.csv`), groups them by their
 Table I row (`row`, set by conf/experiment/table1/*.yaml; otherwise obs/fusion/reg), and reports the final

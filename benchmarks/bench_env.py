@@ -1,7 +1,7 @@
 """Environment speed: control steps/s of one env (all observations on) with a cost breakdown, and of
 N envs vectorised over 1 and 2 worker processes.
 
-    python tools/bench_env.py [--steps 1000] [--json docs/data/bench_env.json]
+    python benchmarks/bench_env.py [--steps 1000] [--json docs/data/bench_env.json]
 
 Breakdown per control step: physics (the substeps), rendering (64x64 wrist frame), tactile (both
 pads' fields), framework (composer, observables, reward, gymnasium adapter: the rest). The tactile

@@ -1,6 +1,6 @@
 """End-to-end training throughput (env steps/s, rollout + update) for Table I configurations.
 
-    python tools/bench_train.py [--iterations 6] [--only NAME ...] [--json docs/data/bench_train.json] [overrides...]
+    python benchmarks/bench_train.py [--iterations 6] [--only NAME ...] [--json docs/data/bench_train.json] [overrides...]
 
 Runs each configuration at the default `cpu` preset for a few iterations (evaluation off) and reports
 the median over iterations after the first of `charts/SPS` (whole iteration) and `charts/rollout_SPS`.

@@ -1,6 +1,6 @@
 """One Adam step over a policy's parameters: torch's default implementation against the fused one PPO uses.
 
-    python tools/bench_optimizer.py [--steps 300] [--threads 2] [--json docs/data/bench_optimizer.json]
+    python benchmarks/bench_optimizer.py [--steps 300] [--threads 2] [--json docs/data/bench_optimizer.json]
 
 The update takes one Adam step per minibatch (16 per iteration at `preset=cpu`). Times the step alone,
 with fixed random gradients, for the privileged-state policy (asymmetric critic, as trained) and the wrist
@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import torch
-from bench_policy import policy_from_overrides  # tools/ is the script's directory
+from bench_policy import policy_from_overrides  # benchmarks/ is the script's directory
 
 from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record

@@ -1,7 +1,7 @@
 """What bounds the image policy's training speed: one PPO minibatch forward+backward, float32 vs bfloat16.
 
-    python tools/bench_update.py [--minibatch 256] [--seq-len 32] [--repeats 5] [--json docs/data/bench_update.json]
-    python tools/bench_update.py --profile   # also: where the bfloat16 minibatch's time goes (torch.profiler)
+    python benchmarks/bench_update.py [--minibatch 256] [--seq-len 32] [--repeats 5] [--json docs/data/bench_update.json]
+    python benchmarks/bench_update.py --profile   # also: where the bfloat16 minibatch's time goes (torch.profiler)
 
 Times forward + backward + Adam step of the wrist + tactile CMT + symmetry policy on one minibatch of
 sequences, with the conv encoders in float32 and under bfloat16 autocast, and counts the convolutions'
@@ -78,7 +78,7 @@ def main():
     parser.add_argument("--profile", action="store_true", help="print torch.profiler's top ops of the bfloat16 minibatch")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    from bench_policy import make_policy  # tools/ is the script's directory
+    from bench_policy import make_policy  # benchmarks/ is the script's directory
 
     torch.manual_seed(0)
     policy = make_policy("cmt").train()

@@ -1,7 +1,7 @@
 """Where MuJoCo's time goes, by what the peg is doing: MuJoCo's own timers per substep, one environment.
 
-    python tools/bench_physics.py [--episodes 8] [--ckpt <run>/checkpoints/last.ckpt] [--json docs/data/bench_physics.json]
-    python tools/bench_physics.py --ckpt ... --opt cone=0 --disable MULTICCD   # the same under other MuJoCo options
+    python benchmarks/bench_physics.py [--episodes 8] [--ckpt <run>/checkpoints/last.ckpt] [--json docs/data/bench_physics.json]
+    python benchmarks/bench_physics.py --ckpt ... --opt cone=0 --disable MULTICCD   # the same under other MuJoCo options
 
 Drives one environment with the privileged observations and the critic state (what `obs=privileged`
 trains on) three ways: uniform random actions (the peg mostly in the air, like an untrained policy), the

@@ -1,8 +1,8 @@
 """Render one episode to a video: outside view, wrist view, and both pads' force fields (arrows for shear
 over a heatmap of normal force), side by side as in the paper's force-field figure.
 
-    python tools/render_episode.py --out docs/media/oracle_episode.gif            # scripted oracle
-    python tools/render_episode.py --ckpt outputs/.../checkpoints/last.ckpt --out episode.mp4
+    python -m vitac.video --out docs/media/oracle_episode.gif            # scripted oracle
+    python -m vitac.video --ckpt outputs/.../checkpoints/last.ckpt --out episode.mp4
 
 The right pad's map is shown with its rows flipped, so a balanced grasp looks like two matching maps.
 """

@@ -1,13 +1,13 @@
 """The figures docs/results.md quotes for a training run, from its metrics CSV(s).
 
-    python tools/run_summary.py <run>/csv/metrics.csv [<resumed run>/csv/metrics.csv ...] [--window 1e6]
+    python -m vitac.runs summary <run>/csv/metrics.csv [<resumed run>/csv/metrics.csv ...] [--window 1e6]
         [--max-steps 8e6]   # only the iterations up to that many env steps, to compare runs at one budget
 
 Prints env steps covered, iterations, median env steps/s, the learning rate (median and 10th-90th
 percentile), median approximate KL, entropy at the first and last iteration, training success (mean per
 `--window` env steps and overall), the range of the held-out evaluations, the learning rate's extremes and
 the explained variance of the value targets (first iteration and median). Segments are read as
-tools/plot_run.py reads them.
+vitac/analysis/curves.py reads them.
 """
 
 from __future__ import annotations
@@ -17,19 +17,19 @@ import statistics
 from pathlib import Path
 
 import numpy as np
-from plot_run import column, read_segments
 
+from vitac.analysis.curves import column, read_segments
 from vitac.utils.cli import number_above, stop_quietly_when_the_reader_closes
 
 
-def main():
+def main(argv=None):
     stop_quietly_when_the_reader_closes()
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m vitac.runs summary", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
     parser.add_argument("--window", type=number_above(0), default=1e6, help="env steps per training-success mean")
     parser.add_argument("--max-steps", type=number_above(0), default=None,
                         help="summarize up to this many env steps (compare runs at one budget)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     rows = read_segments(args.metrics, args.max_steps)[0]
     values = lambda key: [v for _, v in column(rows, key)]  # noqa: E731
     steps, lr, entropy = values("charts/env_steps"), values("charts/lr"), values("losses/entropy")
@@ -58,6 +58,3 @@ def main():
     print(f"explained variance: first {explained[0]:.2f}, median {statistics.median(explained):.2f}" if explained
           else f"explained variance: {missing}")
 
-
-if __name__ == "__main__":
-    main()

@@ -1,6 +1,6 @@
 """How evaluated episodes ended: outcome counts and where the peg was, from `vitac.evaluate` JSON reports.
 
-    python tools/outcomes.py docs/data/results/privileged_cpu_stage1_eval_paper.json [more.json ...] [--paired]
+    python -m vitac.runs outcomes docs/data/results/privileged_cpu_stage1_eval_paper.json [more.json ...] [--paired]
 
 For each report and outcome (inserted, on or above the socket, ...): the number of episodes and the
 quartiles of the peg's final horizontal offset from the hole axis (mm), its height above the hole floor
@@ -91,13 +91,13 @@ def final_states(report: dict) -> list[dict]:
                  tilt_deg=math.degrees(e["peg_tilt"])) for e in report["final_state"]]
 
 
-def main():
+def main(argv=None):
     stop_quietly_when_the_reader_closes()
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m vitac.runs outcomes", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("reports", type=Path, nargs="+")
     parser.add_argument("--paired", action="store_true", help="compare two reports of the same episodes")
     parser.add_argument("--pooled", action="store_true", help="success over reports of one checkpoint on other episodes")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.paired and len(args.reports) != 2:
         parser.error("--paired takes exactly two reports")
     reports = [read_report(path) for path in args.reports]
@@ -115,6 +115,3 @@ def main():
     if args.pooled:
         print("\n" + pooled(reports, [path.stem for path in args.reports]))
 
-
-if __name__ == "__main__":
-    main()

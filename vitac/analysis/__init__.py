@@ -1,0 +1,1 @@
+"""Reading runs: learning curves, summaries, evaluation outcomes, the action noise (`python -m vitac.runs`)."""
