@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import importlib.util
 import json
+import math
 import os
 import signal
 import subprocess
@@ -639,3 +640,22 @@ def test_corrupt_critic_checkpoint_is_refused(tmp_path):
     bad.write_bytes(b"\x00truncated")
     with pytest.raises(ValueError, match="critic_ckpt=.*not a readable vitac checkpoint"):
         train(compose_config(SMOKE + [f"critic_ckpt={bad}"], output_dir=tmp_path / "run"))
+
+
+def test_an_exported_policy_is_small_loads_weights_only_and_evaluates_as_its_checkpoint(tmp_path):
+    from vitac.utils.checkpoint import export_policy
+
+    run = train(compose_config(["preset=smoke", "experiment=table1/privileged"], output_dir=tmp_path / "run"))
+    export_policy(run["checkpoint"], tmp_path / "pretrained" / "p.pt")
+    shipped = torch.load(tmp_path / "pretrained" / "p.pt", weights_only=True)  # no optimizer, env or RNG state
+    assert set(shipped) == {"vitac_config", "state_dict", "env_steps", "source"} and shipped["env_steps"] == 64
+    assert (tmp_path / "pretrained" / "p.pt").stat().st_size < Path(run["checkpoint"]).stat().st_size / 2
+    episodes = dict(episodes=2, num_envs=2, num_workers=0, seed=7)
+    original = evaluate(run["checkpoint"], out=str(tmp_path / "a.json"), **episodes)
+    by_name = evaluate(str(tmp_path / "pretrained" / "p"), out=str(tmp_path / "b.json"), **episodes)  # no suffix
+    assert original["final_keypoint_distance_mm"] == by_name["final_keypoint_distance_mm"]
+    # A critic (TacSL's AACD) and a warm start come from it as from the checkpoint.
+    student = train(compose_config(["preset=smoke", "experiment=table1/privileged", "trainer.iterations=1",
+                                    f"critic_ckpt={tmp_path / 'pretrained' / 'p.pt'}",
+                                    f"init_ckpt={tmp_path / 'pretrained' / 'p.pt'}"], output_dir=tmp_path / "student"))
+    assert math.isfinite(student["metrics"]["losses/loss"])

@@ -2,29 +2,58 @@
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 
+def resolve_checkpoint(path: str | Path) -> Path:
+    """`path` itself, or a shipped policy named without its suffix (`pretrained/privileged` for its `.pt`)."""
+    path = Path(path)
+    if not path.is_file() and path.with_suffix(".pt").is_file():
+        return path.with_suffix(".pt")
+    return path
+
+
 def load_checkpoint(path: str | Path, key: str = "ckpt") -> dict:
-    """The checkpoint dict at `path` (our own files: they carry numpy RNG and environment states).
+    """The checkpoint dict at `path`: a shipped policy (weights and config only) is read with torch's
+    weights-only unpickler; a training checkpoint (our own files: they also carry numpy RNG and environment
+    states for exact resume) needs the full one.
 
     Args:
-        path: checkpoint file.
+        path: checkpoint file, or a shipped policy's name (`pretrained/privileged`).
         key: the config key that named it, for error messages.
     """
-    path = Path(path)
+    path = resolve_checkpoint(path)
     if not path.is_file():
         raise FileNotFoundError(f"{key}={str(path)!r}: no such checkpoint file")
     try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        try:
+            checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+        except pickle.UnpicklingError:  # a training checkpoint: environment and RNG states
+            checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as err:  # a truncated or foreign file must not be half-read
         raise ValueError(f"{key}={str(path)!r} is not a readable vitac checkpoint: {err}") from err
     if not isinstance(checkpoint, dict) or "vitac_config" not in checkpoint or "state_dict" not in checkpoint:
         raise ValueError(f"{key}={str(path)!r} is not a vitac checkpoint (no stored config or weights)")
     return checkpoint
+
+
+def export_policy(path: str | Path, out: str | Path) -> dict:
+    """Write the checkpoint's policy as a shipped file: the network and normalizer weights (the value normalizer
+    too, for a critic started from it) and the run's config, no optimizer or environment state; readable with
+    torch's weights-only unpickler. Returns what was written."""
+    checkpoint = load_checkpoint(path)
+    config = checkpoint["vitac_config"]
+    state = {k: v for k, v in checkpoint["state_dict"].items() if k.startswith(("policy.", "value_normalizer."))}
+    env_steps = (checkpoint.get("vitac") or {}).get("env_steps")
+    shipped = dict(vitac_config=config, state_dict=state, env_steps=env_steps, source=str(path))
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(shipped, out)
+    return shipped
 
 
 class PortableCheckpointIO(TorchCheckpointIO):
