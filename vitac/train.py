@@ -9,7 +9,7 @@ import hydra
 import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
-from lightning.pytorch.loggers import CSVLogger, WandbLogger
+from lightning.pytorch.loggers import CSVLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.algos.callbacks import BestEvaluation, CheckpointOnTermination, IterationProgressBar
@@ -20,7 +20,7 @@ from vitac.run_config import build_policy_from_config, task_settings
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.instantiate import instantiate
-from vitac.utils.quiet import quiet_third_party
+from vitac.utils.quiet import OfflineWandbLogger, quiet_third_party
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 
 log = logging.getLogger(__name__)
@@ -67,8 +67,8 @@ def train(cfg: DictConfig) -> dict:
                  evaluation, CheckpointOnTermination(out / "checkpoints" / "last.ckpt"), IterationProgressBar()]
     loggers = [CSVLogger(out, name="csv", version="")]
     if cfg.logger.wandb:
-        loggers.append(WandbLogger(save_dir=str(out), offline=True, project=cfg.logger.project,
-                                   name=cfg.logger.get("name"), config=resolved))
+        loggers.append(OfflineWandbLogger(save_dir=str(out), project=cfg.logger.project, name=cfg.logger.get("name"),
+                                          config=resolved))
     trainer = L.Trainer(max_epochs=cfg.trainer.iterations, accelerator=accelerator, devices=1, logger=loggers,
                         callbacks=callbacks, enable_progress_bar=False, enable_model_summary=False,
                         log_every_n_steps=1, num_sanity_val_steps=0, deterministic=cfg.trainer.deterministic,

@@ -5,6 +5,8 @@ from __future__ import annotations
 import logging
 import warnings
 
+from lightning.pytorch.loggers import WandbLogger
+
 
 class _DropTips(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
@@ -17,3 +19,12 @@ def quiet_third_party() -> None:
     logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropTips())
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
     warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"(wandb|lightning|torch)\b")
+
+
+class OfflineWandbLogger(WandbLogger):
+    """Lightning's WandbLogger in offline mode, without the `anonymous` argument Lightning always passes and
+    wandb (0.19 on) warns about whatever its value."""
+
+    def __init__(self, **kwargs):
+        super().__init__(offline=True, **kwargs)
+        self._wandb_init.pop("anonymous", None)

@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
 from dataclasses import asdict
 
 import numpy as np
 import pytest
 
 from vitac.envs.gym_env import TaskEnv
-from vitac.envs.vector_env import TaskVectorEnv
 from vitac.tasks.insertion.config import InsertionConfig, Randomization
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
@@ -106,74 +103,6 @@ def test_same_seed_same_episode():
     assert ra == rb
     a.close()
     b.close()
-
-
-def test_lean_control_step_gives_composers_trajectory_and_observations_bit_for_bit():
-    from dm_control import composer
-
-    from vitac.sim.environment import LeanEnvironment
-    from vitac.tasks.insertion.task import InsertionTask
-
-    settings = InsertionConfig.from_dict({"observations": ["proprio", "critic_state"]})
-    kwargs = dict(random_state=3, time_limit=float("inf"), strip_singleton_obs_buffer_dim=True,
-                  raise_exception_on_physics_error=False, recompile_mjcf_every_episode=False)
-    ours, composers = (cls(InsertionTask(settings), **kwargs) for cls in (LeanEnvironment, composer.Environment))
-    rng = np.random.default_rng(0)
-    ours.reset()
-    composers.reset()
-    # The critic state's contact forces differ by design: ours are the last substep's solve, composer's a
-    # solve for the final state (test_contact_forces_are_the_last_substeps_solve_and_a_fresh_one_after_reset).
-    forces = slice(-13, -4)  # before the peg-to-socket offset (3) and the keypoint distance (1)
-    for t in range(300):  # random and straight-down actions, across an episode's end and reset
-        action = rng.uniform(-1, 1, 6) if t % 2 else np.array([0, 0, -1.0, 0, 0, 0])
-        a, b = ours.step(action), composers.step(action)
-        assert a.step_type == b.step_type and a.reward == b.reward
-        for k in a.observation:
-            if k == "critic_state":
-                a.observation[k][forces] = b.observation[k][forces] = 0.0
-            np.testing.assert_array_equal(a.observation[k], b.observation[k])
-    np.testing.assert_array_equal(ours.physics.get_state(), composers.physics.get_state())
-    ours.close()
-    composers.close()
-
-
-def test_lean_control_step_refuses_substep_hooks_and_buffered_observables():
-    from vitac.sim.environment import LeanEnvironment
-    from vitac.tasks.insertion.task import InsertionTask
-
-    env = LeanEnvironment(InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]})))
-    with pytest.raises(ValueError, match="hook_name='after_substep' is not allowed"):
-        env.add_extra_hook("after_substep", lambda physics, random_state: None)
-    env.close()
-    task = InsertionTask(InsertionConfig.from_dict({"observations": ["proprio"]}))
-    task.observables["proprio"].buffer_size = 3
-    with pytest.raises(ValueError, match=r"buffer, delay or transform observables \['proprio'\]"):
-        LeanEnvironment(task)
-
-
-def test_rotation_helpers_match_scipy_and_an_action_turns_the_hand_about_world_axes():
-    from scipy.spatial.transform import Rotation
-
-    from vitac.sim.poses import DOWN, axis_angle_matrix, euler_zyx_from_matrix, matrix_from_euler_zyx
-
-    rng = np.random.default_rng(0)
-    for _ in range(50):
-        rotvec, euler = rng.normal(size=3) * 0.5, rng.uniform(-1.2, 1.2, 3)
-        np.testing.assert_allclose(axis_angle_matrix(rotvec), Rotation.from_rotvec(rotvec).as_matrix(), atol=1e-12)
-        matrix = matrix_from_euler_zyx(*euler)
-        np.testing.assert_allclose(matrix, Rotation.from_euler("ZYX", euler).as_matrix(), atol=1e-12)
-        np.testing.assert_allclose(euler_zyx_from_matrix(matrix), euler, atol=1e-12)
-    # The rotation part of an action is an axis-angle delta in the world frame applied to the hand's orientation.
-    e = TaskEnv({"observations": ["proprio"]}, seed=0)
-    e.reset(seed=4)
-    task, physics = e.task, e.physics
-    action = np.array([0.0, 0.0, 0.0, 0.7, -0.4, 0.9])
-    hinges = physics.data.qpos[task._ids["hand_qpos"]][3:].copy()
-    task.before_step(physics, action, None)
-    target = physics.data.ctrl[task._ids["hand_act"]][3:]
-    expected = axis_angle_matrix(action[3:] * task.config.rot_action_scale) @ DOWN @ matrix_from_euler_zyx(*hinges)
-    np.testing.assert_allclose(DOWN @ matrix_from_euler_zyx(*target), expected, atol=1e-12)
-    e.close()
 
 
 def test_keypoint_distance_is_the_mean_distance_between_matching_keypoints():
@@ -355,54 +284,6 @@ def test_diverged_physics_ends_the_episode_as_a_failed_termination():
     _, _, terminated, _, _ = e.step(np.zeros(6))
     e.close()
     assert np.isfinite(obs["proprio"]).all() and not terminated
-
-
-def test_vector_env_workers_match_in_process_and_autoreset_same_step():
-    cfg = {"observations": ["proprio", "critic_state"], "episode_steps": 5}
-    actions = np.random.default_rng(0).uniform(-1, 1, (7, 4, 6))
-    outputs = []
-    for workers, step_in_main in ((0, False), (2, False), (2, True), (1, True)):
-        venv = TaskVectorEnv(cfg, num_envs=4, num_workers=workers, seed=7, step_in_main=step_in_main)
-        obs, _ = venv.reset(seed=7)
-        trace = [obs["proprio"].copy()]
-        for t in range(7):
-            obs, reward, terminated, truncated, info = venv.step(actions[t])
-            trace.append(obs["proprio"].copy())
-            if t == 4:
-                assert truncated.all() and not terminated.any()
-                assert sorted(info["final_obs"]) == [0, 1, 2, 3]
-                assert not np.allclose(info["final_obs"][0]["proprio"], obs["proprio"][0])
-        venv.close()
-        outputs.append(np.array(trace))
-    for other in outputs[1:]:
-        np.testing.assert_array_equal(outputs[0], other)
-
-
-def test_a_failing_group_is_reported_and_leaves_the_vector_env_in_step():
-    venv = TaskVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
-    venv.reset(seed=0)
-    bad = np.zeros((4, 6))
-    bad[0, 0] = np.nan  # refused by this process's group, while the worker steps its two envs
-    with pytest.raises(ValueError, match="finite"):
-        venv.step(bad)
-    bad = np.zeros((4, 6))
-    bad[3, 0] = np.nan  # refused in the worker: named as its group
-    with pytest.raises(RuntimeError, match="environment group 1 .*failed in 'step'"):
-        venv.step(bad)
-    obs, reward, *_ = venv.step(np.zeros((4, 6)))  # every reply was collected: the next step is in order
-    venv.close()
-    assert obs["proprio"].shape == (4, 19) and np.isfinite(reward).all()
-
-
-def test_a_dead_worker_is_named_with_its_exit_code_and_close_still_works():
-    venv = TaskVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
-    venv.reset(seed=0)
-    worker = venv._procs[0]
-    os.kill(worker.pid, signal.SIGKILL)  # e.g. the kernel's OOM killer
-    worker.join(timeout=10)
-    with pytest.raises(RuntimeError, match=rf"worker process {worker.pid} died \(exit code -9\) during 'step'"):
-        venv.step(np.zeros((4, 6)))
-    venv.close()
 
 
 def test_env_refuses_bad_config_at_construction():
