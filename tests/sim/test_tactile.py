@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vitac.sim.tactile import PegGeometry, TactileFieldSensor
+from vitac.sim.tactile import TactileFieldSensor, box, cylinder, regular_prism
 
-PEG = PegGeometry("round", 0.008, 0.008, 0.05)
+PEG = cylinder(0.008, 0.05)
 PAD_ROT = np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]])  # pad x = world x, y = world z, z (out) = world -y
 
 
@@ -18,7 +18,7 @@ def _sensor():
 def _field(gap=-0.0005, peg_vel=(0, 0, 0), pad_vel=(0, 0, 0), peg_shift=(0, 0, 0)):
     """Pad face at y = 0.008 + gap... facing -y, peg axis along world z centred at the origin."""
     sensor = _sensor()
-    pad_pos = np.array([0.0, PEG.half_x + gap, 0.025])
+    pad_pos = np.array([0.0, PEG.radius + gap, 0.025])
     peg_pos = np.array(peg_shift, float)
     zero = np.zeros(3)
     return sensor.field(PEG, pad_pos, PAD_ROT, np.array(pad_vel, float), zero, peg_pos, np.eye(3),
@@ -70,8 +70,8 @@ def test_contact_line_lies_where_the_peg_touches():
 def test_normal_force_is_kn_times_depth_along_the_face_normal(shape):
     # A pad facing -y pressed 0.4 mm into the +y face of the peg: at the contact line the force is
     # purely normal, kn * depth, and no taxel beyond the peg's length (z > 0.05) feels anything.
-    peg = PegGeometry(shape, 0.008, 0.005, 0.05)
-    face = peg.half_x if shape == "round" else peg.half_y
+    peg = cylinder(0.008, 0.05) if shape == "round" else box(0.008, 0.005, 0.05)
+    face = 0.008 if shape == "round" else 0.005
     sensor = _sensor()
     zero = np.zeros(3)
     field = sensor.field(peg, np.array([0.0, face - 0.0004, 0.04]), PAD_ROT, zero, zero, zero, np.eye(3), zero, zero)
@@ -79,3 +79,20 @@ def test_normal_force_is_kn_times_depth_along_the_face_normal(shape):
     assert field[2].max() == pytest.approx(1000.0 * 0.0004, rel=1e-6 if shape == "rectangular" else 0.03)
     y_world = 0.04 + sensor.points[:, 1].reshape(32, 32)  # the pad's y axis is world +z
     assert np.all(field[2][y_world >= 0.05] == 0.0) and np.any(field[2][y_world < 0.05] > 0)
+
+
+def test_a_new_part_is_a_shape_not_a_change_to_the_model_a_hexagonal_prism_pressed_on_a_flat():
+    # A hexagonal nut (24 mm across flats) with a flat facing +y: pressed 0.4 mm into that flat, the pad feels
+    # kn * depth along the flat's normal, exactly as on a box of the same half width, and nothing past its height.
+    sensor, zero = _sensor(), np.zeros(3)
+    nut = regular_prism(6, 0.012, 0.013, yaw=np.pi / 2)
+    slab = box(0.02, 0.012, 0.013)
+    pad = np.array([0.0, 0.012 - 0.0004, 0.0065])
+    on_nut = sensor.field(nut, pad, PAD_ROT, zero, zero, zero, np.eye(3), zero, zero)
+    on_box = sensor.field(slab, pad, PAD_ROT, zero, zero, zero, np.eye(3), zero, zero)
+    assert on_nut[2].max() == pytest.approx(1000.0 * 0.0004, rel=1e-9)
+    # Within the flat (|x| under half its 13.9 mm length) the two fields agree; beyond it the hexagon turns away.
+    x_world = sensor.points[:, 0].reshape(32, 32)
+    within = np.abs(x_world) < 0.0069 - 0.0005
+    np.testing.assert_allclose(on_nut[2][within], on_box[2][within], atol=1e-9)
+    assert on_nut[2][np.abs(x_world) > 0.0075].max() == 0.0

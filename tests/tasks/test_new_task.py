@@ -17,7 +17,7 @@ from vitac.envs.gym_env import TaskEnv
 from vitac.evaluate import evaluate
 from vitac.sim import collision
 from vitac.sim.poses import DOWN
-from vitac.sim.tactile import PegGeometry
+from vitac.sim.tactile import box
 from vitac.tasks.base import GraspedPartTask
 from vitac.tasks.config import GraspTaskConfig, ObservationSpec
 from vitac.train import train
@@ -64,7 +64,7 @@ class BoxConfig(GraspTaskConfig):
 
 class BoxTask(GraspedPartTask):
     def _build_parts(self):
-        self.held_geometry = PegGeometry("rectangular", HALF, HALF, LENGTH)
+        self.held_shape = box(HALF, HALF, LENGTH)
         self._attach_parts(Box(), BoxHole())
 
     def initialize_episode(self, physics, random_state):

@@ -16,24 +16,40 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-PEG_SHAPES = ("round", "rectangular")
-
 
 @dataclass(frozen=True)
-class PegGeometry:
-    """Solid peg in its own frame: bottom face at z = 0, axis along +z.
-
-    Args:
-        shape: "round" (cylinder of radius half_x) or "rectangular" (box with half sizes half_x, half_y).
-        half_x: radius for a round peg, half width along x for a rectangular one (m).
-        half_y: half depth along y for a rectangular peg (ignored for a round one) (m).
-        length: peg length along z (m).
+class ContactShape:
+    """A held part as the pads feel it, in its own frame (bottom face at z = 0, axis along +z): a cylinder of
+    `radius`, or a convex prism whose side faces have outward unit normals `normals` ((nx, ny) each) at
+    distances `offsets` from the axis. A new part needs only its shape (`cylinder`, `box`, `regular_prism`,
+    or its own faces), not a change to the force model.
     """
 
-    shape: str
-    half_x: float
-    half_y: float
     length: float
+    radius: float = 0.0
+    normals: tuple = ()
+    offsets: tuple = ()
+
+    @property
+    def is_cylinder(self) -> bool:
+        return not self.normals
+
+
+def cylinder(radius: float, length: float) -> ContactShape:
+    return ContactShape(float(length), radius=float(radius))
+
+
+def box(half_x: float, half_y: float, length: float) -> ContactShape:
+    return ContactShape(float(length), normals=((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)),
+                        offsets=(float(half_x), float(half_x), float(half_y), float(half_y)))
+
+
+def regular_prism(sides: int, apothem: float, length: float, yaw: float = 0.0) -> ContactShape:
+    """A regular polygon's prism (a hexagonal nut: sides=6, apothem = half the width across flats), its first
+    face normal at `yaw` from the x axis."""
+    angles = yaw + 2 * math.pi * np.arange(sides) / sides
+    return ContactShape(float(length), normals=tuple((math.cos(a), math.sin(a)) for a in angles),
+                        offsets=(float(apothem),) * sides)
 
 
 def taxel_grid(rows: int, cols: int, size_x: float, size_y: float, margin: float) -> np.ndarray:
@@ -45,36 +61,39 @@ def taxel_grid(rows: int, cols: int, size_x: float, size_y: float, margin: float
 
 
 @numba.njit(cache=True)
-def _penetration(x, y, z, round_peg, half_x, half_y, length):
-    """Depth below the nearest face and that face's outward normal, for a point inside the peg (else depth 0)."""
+def _penetration(x, y, z, cylinder, radius, normals, offsets, length):
+    """Depth below the nearest face and that face's outward normal, for a point inside the part (else depth 0).
+    Side faces are tried in order and the first of equal depths is kept."""
     if z <= 0.0 or z >= length:
         return 0.0, 0.0, 0.0, 0.0
     cap = min(z, length - z)
     cap_nz = 1.0 if z > 0.5 * length else -1.0
-    if round_peg:
+    if cylinder:
         r2 = x * x + y * y
-        if r2 >= half_x * half_x:
+        if r2 >= radius * radius:
             return 0.0, 0.0, 0.0, 0.0
         radial = math.sqrt(r2)
-        side = half_x - radial
+        side = radius - radial
         if side <= cap:
             if radial < 1e-12:
                 return side, 1.0, 0.0, 0.0
             return side, x / radial, y / radial, 0.0
         return cap, 0.0, 0.0, cap_nz
-    slack_x, slack_y = half_x - abs(x), half_y - abs(y)
-    if slack_x <= 0.0 or slack_y <= 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    if slack_x <= slack_y and slack_x <= cap:
-        return slack_x, 1.0 if x >= 0.0 else -1.0, 0.0, 0.0
-    if slack_y <= cap:
-        return slack_y, 0.0, 1.0 if y >= 0.0 else -1.0, 0.0
+    best, best_face = math.inf, -1
+    for f in range(normals.shape[0]):
+        slack = offsets[f] - (normals[f, 0] * x + normals[f, 1] * y)
+        if slack <= 0.0:
+            return 0.0, 0.0, 0.0, 0.0
+        if slack < best:
+            best, best_face = slack, f
+    if best <= cap:
+        return best, normals[best_face, 0], normals[best_face, 1], 0.0
     return cap, 0.0, 0.0, cap_nz
 
 
 @numba.njit(cache=True)
 def _fields(points, pad_pos, pad_rot, pad_lin, pad_ang, peg_pos, peg_rot, peg_lin, peg_ang,
-            round_peg, half_x, half_y, length, kn, kt, mu, out):
+            cylinder, radius, normals, offsets, length, kn, kt, mu, out):
     """Fill out (P, 3, N) with (shear_x, shear_y, normal) per taxel; see TactileFieldSensor.fields."""
     for p in range(pad_pos.shape[0]):
         rot = pad_rot[p]
@@ -91,7 +110,7 @@ def _fields(points, pad_pos, pad_rot, pad_lin, pad_ang, peg_pos, peg_rot, peg_li
             lx = peg_rot[0, 0] * wx + peg_rot[1, 0] * wy + peg_rot[2, 0] * wz
             ly = peg_rot[0, 1] * wx + peg_rot[1, 1] * wy + peg_rot[2, 1] * wz
             lz = peg_rot[0, 2] * wx + peg_rot[1, 2] * wy + peg_rot[2, 2] * wz
-            depth, nx_, ny_, nz_ = _penetration(lx, ly, lz, round_peg, half_x, half_y, length)
+            depth, nx_, ny_, nz_ = _penetration(lx, ly, lz, cylinder, radius, normals, offsets, length)
             if depth <= 0.0:
                 out[p, 0, n] = 0.0
                 out[p, 1, n] = 0.0
@@ -136,13 +155,13 @@ class TactileFieldSensor:
         self.kn, self.kt, self.mu = kn, kt, mu
         self.points = taxel_grid(rows, cols, size_x, size_y, margin)  # (N, 3) pad frame
 
-    def field(self, peg: PegGeometry, pad_pos, pad_rot, pad_lin_vel, pad_ang_vel,
+    def field(self, peg: ContactShape, pad_pos, pad_rot, pad_lin_vel, pad_ang_vel,
               peg_pos, peg_rot, peg_lin_vel, peg_ang_vel) -> np.ndarray:
         """(3, rows, cols) map (shear_x, shear_y, normal) of one pad; see `fields`."""
         return self.fields(peg, np.asarray(pad_pos)[None], np.asarray(pad_rot)[None], np.asarray(pad_lin_vel)[None],
                            np.asarray(pad_ang_vel)[None], peg_pos, peg_rot, peg_lin_vel, peg_ang_vel)[0]
 
-    def fields(self, peg: PegGeometry, pad_pos, pad_rot, pad_lin_vel, pad_ang_vel,
+    def fields(self, peg: ContactShape, pad_pos, pad_rot, pad_lin_vel, pad_ang_vel,
                peg_pos, peg_rot, peg_lin_vel, peg_ang_vel) -> np.ndarray:
         """(P, 3, rows, cols) maps (shear_x, shear_y, normal), each in its pad's frame, for P pads at once.
 
@@ -152,7 +171,9 @@ class TactileFieldSensor:
         """
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
         out = np.empty((len(pad_pos), 3, len(self.points)))
+        normals = np.array(peg.normals, dtype=np.float64).reshape(-1, 2)
         _fields(self.points, f64(pad_pos), f64(pad_rot), f64(pad_lin_vel), f64(pad_ang_vel), f64(peg_pos),
-                f64(peg_rot), f64(peg_lin_vel), f64(peg_ang_vel), peg.shape == "round", float(peg.half_x),
-                float(peg.half_y), float(peg.length), float(self.kn), float(self.kt), float(self.mu), out)
+                f64(peg_rot), f64(peg_lin_vel), f64(peg_ang_vel), peg.is_cylinder, float(peg.radius), normals,
+                np.array(peg.offsets, dtype=np.float64), float(peg.length), float(self.kn), float(self.kt),
+                float(self.mu), out)
         return out.reshape(len(pad_pos), 3, self.rows, self.cols)

@@ -30,8 +30,8 @@ SETTLE_SECONDS = 0.25  # TacSL closes the gripper for 30 sim steps of 1/120 s wi
 class GraspedPartTask(composer.Task):
     """Bring a part held between the two sensing pads to a fixed part.
 
-    Subclasses set `self.held` (an entity with `body`, `geom`, `grasp_geom`), `self.held_geometry` (the
-    tactile model's contact shape) and `self.fixed` (an entity with `body`) through `_attach_parts` in
+    Subclasses set `self.held` (an entity with `body`, `geom`, `grasp_geom`), `self.held_shape` (a
+    `vitac.sim.tactile.ContactShape`: the part as the pads feel it) and `self.fixed` (an entity with `body`) through `_attach_parts` in
     `_build_parts`, and implement `initialize_episode` (ending with `_settle_grasp`), `get_reward`,
     `keypoint_distance`, `is_success`, `outcome` and `_observation_sources`.
 
@@ -240,7 +240,7 @@ class GraspedPartTask(composer.Task):
         sites, held = ids["pad_sites"], ids["held_body"]
         velocities = [self._velocity(physics, mujoco.mjtObj.mjOBJ_SITE, site) for site in sites]
         held_lin, held_ang = self._velocity(physics, mujoco.mjtObj.mjOBJ_BODY, held)
-        return self.tactile.fields(self.held_geometry, d.site_xpos[sites], d.site_xmat[sites].reshape(-1, 3, 3),
+        return self.tactile.fields(self.held_shape, d.site_xpos[sites], d.site_xmat[sites].reshape(-1, 3, 3),
                                    np.array([v[0] for v in velocities]), np.array([v[1] for v in velocities]),
                                    d.xpos[held], d.xmat[held].reshape(3, 3), held_lin, held_ang)
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import ClassVar
 
-from vitac.sim.tactile import PEG_SHAPES, PegGeometry
 from vitac.tasks.config import GraspRandomization, GraspTaskConfig, ObservationSpec
 from vitac.tasks.insertion import props
+from vitac.tasks.insertion.props import PEG_SHAPES, PegGeometry
 from vitac.utils.checks import refuse
 
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from dm_control import composer, mjcf
 
 from vitac.sim import collision
-from vitac.sim.tactile import PegGeometry
+from vitac.sim.tactile import ContactShape, box, cylinder
 
 # TacSL (industreal_asset_info_pegs.yaml): nominal size -> peg and hole cross-sections (m).
 ROUND_PEG_DIAMETER = {8: 0.007986, 12: 0.011983, 16: 0.015983}
@@ -20,6 +22,32 @@ HOLE_DEPTH = 0.023
 # the hand tilts ~1.5 degrees, near the 1.3 the clearance allows (TacSL's contacts are rigid), not 3.7 (defaults).
 # Stiffer (0.99-0.999) let a wedged peg blow the simulation up once in 100 evaluation episodes.
 SOCKET_SOLIMP = (0.97, 0.995, 0.001)
+
+
+PEG_SHAPES = ("round", "rectangular")
+
+
+@dataclass(frozen=True)
+class PegGeometry:
+    """Solid peg in its own frame: bottom face at z = 0, axis along +z.
+
+    Args:
+        shape: "round" (cylinder of radius half_x) or "rectangular" (box with half sizes half_x, half_y).
+        half_x: radius for a round peg, half width along x for a rectangular one (m).
+        half_y: half depth along y for a rectangular peg (ignored for a round one) (m).
+        length: peg length along z (m).
+    """
+
+    shape: str
+    half_x: float
+    half_y: float
+    length: float
+
+    def contact_shape(self) -> ContactShape:
+        """The peg as the tactile pads feel it."""
+        if self.shape == "round":
+            return cylinder(self.half_x, self.length)
+        return box(self.half_x, self.half_y, self.length)
 
 
 class Peg(composer.Entity):

@@ -47,7 +47,8 @@ class InsertionTask(GraspedPartTask):
 
     def _build_parts(self):
         config = self.config
-        self.held_geometry = self.peg_geometry = config.peg_geometry()
+        self.peg_geometry = config.peg_geometry()
+        self.held_shape = self.peg_geometry.contact_shape()
         self.peg = props.Peg(self.peg_geometry, density=config.density, friction=config.peg_friction)
         hole_x, hole_y = config.hole_half_extents()
         self.socket = props.Socket(config.peg_shape, hole_x, hole_y, friction=config.socket_friction,
