@@ -7,13 +7,12 @@ from pathlib import Path
 
 import hydra
 import lightning as L
-import torch
 from hydra.core.hydra_config import HydraConfig
 from lightning.pytorch.loggers import CSVLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.algos.callbacks import BestEvaluation, CheckpointOnTermination, IterationProgressBar
-from vitac.algos.run_checks import check_run, resolve_trainer_threads
+from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
 from vitac.run_config import build_policy_from_config, task_settings
@@ -24,17 +23,6 @@ from vitac.utils.quiet import OfflineWandbLogger, quiet_third_party
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 
 log = logging.getLogger(__name__)
-ACCELERATORS = ("cpu", "gpu", "auto")
-
-
-def check_accelerator(accelerator: str) -> str:
-    """The Lightning accelerator for `trainer.accelerator`, refusing a GPU that torch cannot see."""
-    if accelerator not in ACCELERATORS:
-        raise ValueError(f"trainer.accelerator={accelerator!r} is not allowed: expected one of {list(ACCELERATORS)}")
-    if accelerator == "gpu" and not torch.cuda.is_available():
-        raise ValueError("trainer.accelerator='gpu' is not allowed here: torch sees no CUDA device "
-                         f"(torch {torch.__version__}); use cpu or auto")
-    return accelerator
 
 
 def train(cfg: DictConfig) -> dict:

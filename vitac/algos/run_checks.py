@@ -4,6 +4,8 @@ is allowed. `vitac.evaluate` checks its own keys with the same helpers (`vitac/u
 
 from __future__ import annotations
 
+import torch
+
 from vitac.algos.buffer import check_batch_layout
 from vitac.algos.curriculum import RandomizationCurriculum
 from vitac.algos.lr_schedule import make_lr_schedule
@@ -70,3 +72,16 @@ def resolve_trainer_threads(rollout_threads, update_threads, deterministic) -> t
     check_flag("trainer.deterministic", deterministic)
     return (resolve_threads("trainer.rollout_threads", rollout_threads),
             resolve_threads("trainer.update_threads", update_threads))
+
+
+ACCELERATORS = ("cpu", "gpu", "auto")
+
+
+def check_accelerator(accelerator: str) -> str:
+    """The Lightning accelerator for `trainer.accelerator`, refusing a GPU that torch cannot see."""
+    if accelerator not in ACCELERATORS:
+        raise ValueError(f"trainer.accelerator={accelerator!r} is not allowed: expected one of {list(ACCELERATORS)}")
+    if accelerator == "gpu" and not torch.cuda.is_available():
+        raise ValueError("trainer.accelerator='gpu' is not allowed here: torch sees no CUDA device "
+                         f"(torch {torch.__version__}); use cpu or auto")
+    return accelerator
