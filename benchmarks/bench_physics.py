@@ -117,7 +117,7 @@ def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable
 def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable_mask: int) -> dict:
     from vitac.algos.evaluation import run_episodes
     from vitac.envs.vector_env import TaskVectorEnv
-    from vitac.evaluate import load_policy
+    from vitac.run_config import load_policy
 
     policy, _, settings = load_policy(ckpt)
     torch.set_num_threads(1)

@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 import torch
 from lightning.pytorch.utilities import move_data_to_device
+from tests.test_recurrent_ppo import FakeVectorEnv, _policy
 
 from tests.conftest import compose_config
-from tests.test_recurrent_ppo import FakeVectorEnv, _policy
 from tests.test_train import ROOT, SMOKE, _rows
 from vitac.algos.ppo import PPO
-from vitac.evaluate import evaluate, load_policy
+from vitac.evaluate import evaluate
+from vitac.run_config import load_policy
 from vitac.tasks.insertion.config import InsertionConfig
 from vitac.train import train
 from vitac.viz import policy_actor

@@ -18,9 +18,9 @@ import torch
 
 from tests.conftest import CONF, compose_config
 from vitac.envs.gym_env import TaskEnv
-from vitac.evaluate import evaluate, load_policy
+from vitac.evaluate import evaluate
 from vitac.models.normalizer import RunningNormalizer
-from vitac.run_config import build_policy_from_config, task_settings
+from vitac.run_config import build_policy_from_config, load_policy, task_settings
 from vitac.tasks.insertion.config import InsertionConfig
 from vitac.train import load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
@@ -659,3 +659,15 @@ def test_an_exported_policy_is_small_loads_weights_only_and_evaluates_as_its_che
                                     f"critic_ckpt={tmp_path / 'pretrained' / 'p.pt'}",
                                     f"init_ckpt={tmp_path / 'pretrained' / 'p.pt'}"], output_dir=tmp_path / "student"))
     assert math.isfinite(student["metrics"]["losses/loss"])
+
+
+def test_a_student_with_the_teachers_observations_and_architecture_converges_to_its_actions(tmp_path):
+    teacher = train(compose_config(["preset=smoke", "experiment=table1/privileged"], output_dir=tmp_path / "teacher"))
+    student = train(compose_config(["preset=smoke", "experiment=table1/privileged", "algo=dagger", "seed=1",
+                                    f"teacher_ckpt={teacher['checkpoint']}", "trainer.iterations=12",
+                                    "algo.mini_epochs=8", "algo.beta_iterations=4", "eval.every=100"],
+                                   output_dir=tmp_path / "student"))
+    mse = [float(r["losses/action_mse"]) for r in _rows(Path(student["metrics_csv"])) if r.get("losses/action_mse")]
+    assert len(mse) == 12 and max(mse[-3:]) < 0.2 * mse[0], mse
+    betas = [float(r["charts/beta"]) for r in _rows(Path(student["metrics_csv"])) if r.get("charts/beta")]
+    assert betas[0] == 1.0 and betas[4:] == [0.0] * 8  # the teacher acts first, then the student alone

@@ -22,30 +22,13 @@ from tqdm.auto import tqdm
 from vitac.algos.evaluation import run_episodes, summarize
 from vitac.envs.gym_env import TaskEnv
 from vitac.envs.vector_env import TaskVectorEnv
-from vitac.run_config import build_policy_from_config, task_settings
+from vitac.run_config import load_policy
 from vitac.tasks import make_task_config
-from vitac.utils.checkpoint import load_checkpoint
 from vitac.utils.checks import check_flag, check_int, refuse, resolve_groups
 from vitac.utils.quiet import quiet_third_party
 from vitac.utils.records import write_json
 
 log = logging.getLogger(__name__)
-
-
-def load_policy(ckpt: str | Path):
-    """Rebuild the policy from the resolved config stored in the checkpoint, then load its weights."""
-    checkpoint = load_checkpoint(ckpt)
-    cfg = OmegaConf.create(checkpoint["vitac_config"])
-    settings = task_settings(cfg)
-    task_config = make_task_config(settings)
-    if all(task_config.observation_specs()[k].kind != "image" for k in cfg.obs.modalities):
-        # Runs from before fusion and reg were checked against obs recorded the defaults (cmt, sym) beside
-        # image-free observations, where neither was ever built: the same policy as naive and none.
-        cfg.fusion, cfg.reg.lambda_sym = {"_target_": "vitac.models.fusion.NaiveFusion", "_partial_": True}, 0.0
-    policy = build_policy_from_config(cfg, task_config)
-    weights = {k[len("policy."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("policy.")}
-    policy.load_state_dict(weights)
-    return policy, cfg, settings
 
 
 def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, seed: int, out: str | None = None,

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.models.build import build_policy
+from vitac.tasks import make_task_config
 from vitac.tasks.config import GraspTaskConfig
+from vitac.utils.checkpoint import load_checkpoint
 
 
 def uses_critic(cfg: DictConfig) -> bool:
@@ -32,3 +36,35 @@ def build_policy_from_config(cfg: DictConfig, task_config: GraspTaskConfig):
     actor = {k: specs[k] for k in specs if k in cfg.obs.modalities}
     return build_policy(cfg.encoder, cfg.fusion, cfg.head, cfg.reg, cfg.critic, actor,
                         critic_state_dim=specs["critic_state"].shape[0], obs_name=cfg.obs.get("name"))
+
+
+def load_policy(ckpt: str | Path, key: str = "ckpt"):
+    """Rebuild the policy from the resolved config stored in the checkpoint, then load its weights."""
+    checkpoint = load_checkpoint(ckpt, key=key)
+    cfg = OmegaConf.create(checkpoint["vitac_config"])
+    settings = task_settings(cfg)
+    task_config = make_task_config(settings)
+    if all(task_config.observation_specs()[k].kind != "image" for k in cfg.obs.modalities):
+        # Runs from before fusion and reg were checked against obs recorded the defaults (cmt, sym) beside
+        # image-free observations, where neither was ever built: the same policy as naive and none.
+        cfg.fusion, cfg.reg.lambda_sym = {"_target_": "vitac.models.fusion.NaiveFusion", "_partial_": True}, 0.0
+    policy = build_policy_from_config(cfg, task_config)
+    weights = {k[len("policy."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("policy.")}
+    policy.load_state_dict(weights)
+    return policy, cfg, settings
+
+
+def load_teacher(cfg: DictConfig, settings: dict) -> dict:
+    """For an algorithm that distills (`needs_teacher`): the teacher of `teacher_ckpt`, loaded before anything is
+    simulated, with its observations added to `settings`; the keyword arguments it adds to the algorithm."""
+    from vitac.tasks import import_object
+
+    if not getattr(import_object(cfg.algo._target_), "needs_teacher", False):
+        return {}
+    if not cfg.get("teacher_ckpt"):
+        raise ValueError("teacher_ckpt=None is not allowed with this algo: pass a trained policy, e.g. "
+                         "teacher_ckpt=pretrained/privileged")
+    teacher, _, _ = load_policy(cfg.teacher_ckpt, key="teacher_ckpt")
+    keys = teacher.image_keys + teacher.vector_keys + (["critic_state"] if teacher.critic else [])
+    settings["observations"] += [k for k in keys if k not in settings["observations"]]
+    return dict(teacher=teacher)

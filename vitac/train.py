@@ -15,7 +15,7 @@ from vitac.algos.callbacks import BestEvaluation, CheckpointOnTermination, Itera
 from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
-from vitac.run_config import build_policy_from_config, task_settings
+from vitac.run_config import build_policy_from_config, load_teacher, task_settings
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.instantiate import instantiate
@@ -42,6 +42,7 @@ def train(cfg: DictConfig) -> dict:
     log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
              sum(p.numel() for p in policy.parameters()))
     ckpt_path = check_resume(cfg.resume, policy, envs_cfg["num_envs"], resolved) if cfg.resume else None
+    teacher = load_teacher(cfg, settings)  # {} unless the algorithm distills
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
     video_settings = dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS)))
     make_envs, num_envs = instantiate(OmegaConf.create(envs_cfg)), envs_cfg["num_envs"]
@@ -67,7 +68,7 @@ def train(cfg: DictConfig) -> dict:
              max(envs_cfg["num_workers"], 1), envs_cfg["step_in_main"] or not envs_cfg["num_workers"],
              settings["observations"])
     try:
-        module = instantiate(cfg.algo)(policy, envs, freeze_critic=cfg.freeze_critic, seed=cfg.seed or 0,
+        module = instantiate(cfg.algo)(policy, envs, **teacher, seed=cfg.seed or 0,
                                        rollout_threads=rollout_threads, update_threads=update_threads,
                                        run_config=resolved,
                                        curriculum=instantiate(cfg.curriculum) if cfg.curriculum._target_ else None)
@@ -75,6 +76,8 @@ def train(cfg: DictConfig) -> dict:
             load_weights(module, cfg.init_ckpt, list(cfg.init_exclude))
         if cfg.critic_ckpt:
             load_critic(module, cfg.critic_ckpt)
+        if cfg.freeze_critic and policy.critic is not None:  # AACD with a fixed pre-trained critic
+            policy.critic.requires_grad_(False)
         # Our checkpoints carry environment and RNG states (numpy objects): they are our own files.
         trainer.fit(module, ckpt_path=str(ckpt_path) if ckpt_path else None, weights_only=False)
     finally:

@@ -26,7 +26,7 @@ def main():
     parser.add_argument("--out", type=Path, default=Path("episode.gif"))
     args = parser.parse_args()
     if args.ckpt:
-        from vitac.evaluate import load_policy
+        from vitac.run_config import load_policy
 
         policy, _, settings = load_policy(args.ckpt)
         env = TaskEnv(dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS))),

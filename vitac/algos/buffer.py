@@ -34,8 +34,11 @@ class RolloutBuffer:
         self.starts, self.ends, self.next_values = torch.zeros(t, n), torch.zeros(t, n), torch.zeros(t, n)
         self.chunk_states = [None] * (t // self.seq_len)
 
-    def minibatches(self, minibatch_size: int, generator: torch.Generator):
-        """Yield dicts of (L, B, ...) tensors, B = minibatch_size / L chunks of L consecutive steps of one env.
+    def minibatches(self, minibatch_size: int, generator: torch.Generator,
+                    fields=("actions", "log_probs", "values", "advantages", "returns")):
+        """Yield dicts of (L, B, ...) tensors, B = minibatch_size / L chunks of L consecutive steps of one env:
+        the observations, episode starts, recurrent state at each chunk's start and the named per-step `fields`
+        (PPO's by default; an algorithm may store its own, e.g. DAgger's `labels`).
 
         Every (t, env) appears exactly once per call; chunk order is shuffled by `generator`.
         """
@@ -51,6 +54,5 @@ class RolloutBuffer:
             pairs = list(zip(chunk.tolist(), env.tolist(), strict=True))
             h = torch.stack([self.chunk_states[c][0][:, e] for c, e in pairs], 1)
             c = torch.stack([self.chunk_states[c][1][:, e] for c, e in pairs], 1)
-            yield dict(obs={k: v[index] for k, v in self.obs.items()}, actions=self.actions[index],
-                       log_probs=self.log_probs[index], values=self.values[index], starts=self.starts[index],
-                       advantages=self.advantages[index], returns=self.returns[index], state=(h, c))
+            yield dict(obs={k: v[index] for k, v in self.obs.items()}, starts=self.starts[index], state=(h, c),
+                       **{name: getattr(self, name)[index] for name in fields})

@@ -97,7 +97,7 @@ class IterationProgressBar(L.Callback):
     """One bar over all iterations showing env steps/s, success rate and ETA."""
 
     def on_train_start(self, trainer, module):
-        self.bar = tqdm(total=trainer.max_epochs, initial=trainer.current_epoch, desc="PPO", unit="it",
+        self.bar = tqdm(total=trainer.max_epochs, initial=trainer.current_epoch, desc=type(module).__name__, unit="it",
                         dynamic_ncols=True)
 
     def on_train_epoch_end(self, trainer, module):

@@ -37,7 +37,6 @@ class PPO(RolloutAlgorithm):
         lr, gamma, gae_lambda, clip, critic_coef, clip_value, grad_norm, entropy_coef, bounds_loss_coef:
             the paper's A2C table.
         normalize_input, normalize_value, normalize_advantage: running normalizations (advantages per minibatch).
-        freeze_critic: keep the asymmetric critic fixed (AACD with a pre-trained critic).
         rollout_threads, update_threads: torch threads while collecting and while updating.
         run_config: the resolved run config, stored in checkpoints so evaluation can rebuild the policy.
         curriculum: optional schedule of the training envs' randomization scale.
@@ -51,7 +50,7 @@ class PPO(RolloutAlgorithm):
                  gae_lambda: float = 0.95, clip: float = 0.2, critic_coef: float = 2.0, clip_value: bool = True,
                  grad_norm: float = 1.0, entropy_coef: float = 0.0, bounds_loss_coef: float = 1e-4,
                  normalize_input: bool = True, normalize_value: bool = True, normalize_advantage: bool = True,
-                 freeze_critic: bool = False, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
+                 seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
                  run_config: dict | None = None, curriculum: RandomizationCurriculum | None = None,
                  lr_schedule: str = "fixed", kl_threshold: float = 0.008, lr_schedule_every: str = "minibatch",
                  lr_min: float = 1e-6, lr_max: float = 1e-2):
@@ -64,8 +63,6 @@ class PPO(RolloutAlgorithm):
                        bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
         self.lr_schedule = make_lr_schedule(lr_schedule, kl_threshold, lr_schedule_every, lr_min, lr_max, lr)
-        if freeze_critic and policy.critic is not None:
-            policy.critic.requires_grad_(False)
 
     def configure_optimizers(self):
         params = [p for p in self.policy.parameters() if p.requires_grad]

@@ -8,6 +8,7 @@ import torch
 
 from vitac.algos.buffer import check_batch_layout
 from vitac.algos.curriculum import RandomizationCurriculum
+from vitac.algos.dagger import check_dagger
 from vitac.algos.lr_schedule import make_lr_schedule
 from vitac.utils.checks import (
     check_flag,
@@ -55,7 +56,14 @@ def check_run(cfg: dict) -> dict:
     envs = dict(cfg["envs"])
     envs["num_workers"] = resolve_groups(envs["num_envs"], envs["num_workers"], prefix="envs.")
     check_flag("envs.step_in_main", envs["step_in_main"])
-    check_ppo(cfg["algo"], envs["num_envs"])
+    algo = cfg["algo"]
+    for name in ("horizon", "seq_len"):
+        check_int(f"algo.{name}", algo[name], 1)
+    if algo["_target_"] == "vitac.algos.dagger.DAgger":
+        check_dagger({k: v for k, v in algo.items() if not k.startswith("_") and k not in ("horizon", "seq_len")},
+                     algo["horizon"], envs["num_envs"], algo["seq_len"])
+    else:
+        check_ppo(algo, envs["num_envs"])
     check_int("trainer.iterations", cfg["trainer"]["iterations"], 1)
     check_int("eval.every", cfg["eval"]["every"], 1)
     check_int("eval.episodes", cfg["eval"]["episodes"], 1)

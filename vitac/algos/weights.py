@@ -53,7 +53,8 @@ def load_weights(module, path: str, exclude: list) -> None:
     checkpoint = load_checkpoint(path, key="init_ckpt")
     state = checkpoint["state_dict"]
     own = module.state_dict()
-    picked = {k: v for k, v in state.items() if not any(k.startswith(prefix) for prefix in exclude)}
+    picked = {k: v for k, v in state.items() if k.startswith(("policy.", "value_normalizer."))  # not a teacher's
+              and not any(k.startswith(prefix) for prefix in exclude)}
     if FEATURE_INPUT in picked and picked[FEATURE_INPUT].shape[1] < own[FEATURE_INPUT].shape[1]:
         picked[FEATURE_INPUT] = _widen_feature_input(module.policy, picked[FEATURE_INPUT],
                                                      checkpoint["vitac_config"]["obs"]["modalities"], path)

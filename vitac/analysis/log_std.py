@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from vitac.envs.gym_env import TaskEnv
-from vitac.evaluate import load_policy
+from vitac.run_config import load_policy
 from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
 
 

@@ -1,0 +1,141 @@
+"""DAgger checklist (STYLE.md): labels belong to the states they label, the teacher's recurrent state follows the
+trajectory and resets at episode starts, the teacher's normalization is its own, beta = 1 replays the teacher,
+and the symmetry loss reaches the tactile encoders only with reg=sym."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from tests.algos.test_recurrent_ppo import FakeVectorEnv
+from tests.conftest import compose_config
+from vitac.algos.dagger import DAgger
+from vitac.envs.vector_env import TaskVectorEnv
+from vitac.run_config import build_policy_from_config, task_settings
+from vitac.tasks.insertion.config import InsertionConfig
+
+
+def _policy(overrides, seed=0):
+    torch.manual_seed(seed)
+    cfg = compose_config(overrides)
+    return build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
+
+
+class _SpaceFake(FakeVectorEnv):
+    @property
+    def single_observation_space(self):
+        import gymnasium as gym
+
+        return gym.spaces.Dict({k: gym.spaces.Box(-np.inf, np.inf, v.shape[1:]) for k, v in self._obs().items()})
+
+
+class _FunctionTeacher(torch.nn.Module):
+    """A teacher whose action is a known function of the observation it is given: tanh(proprio[:6] + step
+    count since its episode started), so a label taken from the wrong step, or a state not reset, shows."""
+
+    image_keys, vector_keys, critic = [], ["proprio"], None
+
+    def step_inputs(self, obs, starts):
+        return {k: torch.as_tensor(v)[None] for k, v in obs.items()}, starts[None]
+
+    def initial_state(self, batch, device=None):
+        return (torch.zeros(1, batch, 1), torch.zeros(1, batch, 1))
+
+    def forward(self, obs, state, starts):
+        count = state[0] * (1 - starts)[None, ..., None] + 1  # steps since the episode started, this one included
+        mean = torch.tanh(obs["proprio"][..., :6] + count[0])
+        return mean, torch.zeros_like(mean), torch.zeros(mean.shape[:-1]), (count, count)
+
+
+def _collect(module):
+    module.on_train_start()
+    module.policy.eval()
+    module.collect_rollout()
+    return module.buffer
+
+
+def test_labels_are_the_teachers_function_of_the_state_they_label_across_episode_boundaries():
+    envs = _SpaceFake(num_envs=4)
+    module = DAgger(_policy(["experiment=table1/privileged"]), envs, _FunctionTeacher(), horizon=16, seq_len=8,
+                    minibatch_size=16, beta_start=0.0, beta_end=0.0)
+    buf = _collect(module)
+    count = torch.zeros(4)
+    for t in range(16):
+        count = count * (1 - buf.starts[t]) + 1
+        expected = torch.tanh(buf.obs["proprio"][t, :, :6] + count[:, None])
+        torch.testing.assert_close(buf.labels[t], expected, rtol=0, atol=0)
+    assert buf.starts[1:].sum() > 0  # episodes did restart inside the rollout
+
+
+def test_the_teachers_labels_are_its_replay_along_the_trajectory_with_its_own_frozen_normalizers():
+    teacher = _policy(["experiment=table1/privileged"], seed=1)
+    envs = _SpaceFake(num_envs=4)
+    teacher.update_normalizers({k: 3 + 2 * torch.randn(64, *v.shape[1:]) for k, v in envs._obs().items()})
+    frozen = {k: v.clone() for k, v in teacher.state_dict().items() if "normalizer" in k}
+    module = DAgger(_policy(["experiment=table1/privileged"]), envs, teacher, horizon=16, seq_len=8,
+                    minibatch_size=16, beta_start=0.0, beta_end=0.0)
+    buf = _collect(module)
+    module.policy.update_normalizers({k: v.reshape(-1, *v.shape[2:]) for k, v in buf.obs.items()})  # the student's
+    replay, _, _, _ = teacher({k: buf.obs[k] for k in ("proprio", "peg_state", "critic_state")},
+                              teacher.initial_state(4), buf.starts)
+    torch.testing.assert_close(buf.labels, replay, rtol=1e-5, atol=1e-6)
+    assert all(torch.equal(v, teacher.state_dict()[k]) for k, v in frozen.items())
+
+
+def test_with_the_teachers_action_always_executed_the_rollout_is_the_teachers_own():
+    settings = dict(InsertionConfig.from_dict({"observations": ["proprio", "peg_state", "critic_state"],
+                                               "episode_steps": 12}).to_dict())
+    teacher = _policy(["experiment=table1/privileged"], seed=1)
+
+    teacher.eval()
+    envs = TaskVectorEnv(settings, num_envs=2, num_workers=0, seed=3)
+    obs, _ = envs.reset(seed=None)
+    state, starts, plain = teacher.initial_state(2), torch.ones(2), []
+    with torch.no_grad():
+        for _ in range(20):  # across one episode end (12 steps)
+            inputs, s = teacher.step_inputs(obs, starts)
+            mean, _, _, state = teacher(inputs, state, s)
+            obs, reward, terminated, truncated, _ = envs.step(mean[0].clamp(-1, 1).numpy())
+            starts = torch.as_tensor(terminated | truncated, dtype=torch.float32)
+            plain.append((obs["proprio"].copy(), reward.copy()))
+    envs.close()
+    envs = TaskVectorEnv(settings, num_envs=2, num_workers=0, seed=3)
+    module = DAgger(_policy(["experiment=table1/privileged"]), envs, teacher, horizon=20, seq_len=10,
+                    minibatch_size=20, beta_start=1.0, beta_end=1.0)
+    buf = _collect(module)
+    envs.close()
+    torch.testing.assert_close(buf.actions, buf.labels, rtol=0, atol=0)
+    for t in range(19):  # the next step's stored observation is what the teacher's own step returned
+        np.testing.assert_array_equal(buf.obs["proprio"][t + 1].numpy(), plain[t][0])
+        np.testing.assert_array_equal(buf.rewards[t].numpy(), plain[t][1])
+
+
+@pytest.mark.parametrize("reg", ["sym", "none"])
+def test_the_symmetry_loss_reaches_the_tactile_encoders_only_with_reg_sym(reg):
+    student = _policy(["obs=wrist_tactile", "fusion=cmt", f"reg={reg}", "critic=none"])
+    module = DAgger(student, _SpaceFake(num_envs=2), _FunctionTeacher(), horizon=8, seq_len=4, minibatch_size=8)
+    T, B = 4, 2
+    shapes = InsertionConfig().observation_shapes()
+    obs = {k: torch.rand(T, B, *shapes[k]) for k in ("proprio", "tactile_left", "tactile_right")}
+    obs["wrist"] = (255 * torch.rand(T, B, *shapes["wrist"])).to(torch.uint8)
+    mb = dict(obs=obs, state=student.initial_state(B), starts=torch.zeros(T, B), labels=torch.zeros(T, B, 6))
+    terms = module.minibatch_losses(mb)
+    if reg == "sym":
+        (terms["loss"] - terms["distill_loss"]).backward()  # the symmetry term alone
+        assert terms["sym_loss"] > 0
+        for side in ("tactile_left", "tactile_right"):
+            assert student.encoders[side].conv[0].weight.grad.abs().sum() > 0
+    else:
+        assert terms["sym_loss"] == 0 and not terms["sym_loss"].requires_grad
+        assert torch.equal(terms["loss"], terms["distill_loss"])
+
+
+def test_bad_dagger_values_are_refused_naming_the_key():
+    envs = _SpaceFake(num_envs=2)
+    for kwargs, pattern in ((dict(loss="l1"), r"algo\.loss='l1' is not allowed"),
+                            (dict(beta_start=1.5), r"algo\.beta_start=1\.5 is not allowed"),
+                            (dict(student_actions="noisy"), r"algo\.student_actions='noisy'")):
+        with pytest.raises(ValueError, match=pattern):
+            DAgger(_policy(["experiment=table1/privileged"]), envs, _FunctionTeacher(), horizon=8, seq_len=4,
+                   minibatch_size=8, **kwargs)
