@@ -9,7 +9,7 @@ from tests.conftest import compose_config
 from vitac.models.encoders import ConvSoftArgmaxEncoder, SpatialSoftArgmax
 from vitac.models.fusion import CrossModalTransformer, GatedFusion, NaiveFusion
 from vitac.models.head import RecurrentActorHead
-from vitac.models.symmetry import SymmetryRegularizer, flip_vertical
+from vitac.models.symmetry import SymmetryRegularizer, flip_vertical, mirror_pad
 from vitac.run_config import build_policy_from_config, task_settings
 from vitac.tasks.insertion.config import InsertionConfig
 
@@ -90,14 +90,17 @@ def test_cmt_vision_attends_to_tactile():
     assert not torch.allclose(cmt(dict(vision=v, left=left, right=right)), cmt(dict(vision=v, left=right, right=left))), "left and right tokens must be distinguishable"
 
 
-def test_symmetry_loss_is_zero_for_a_mirrored_pair_and_positive_otherwise():
+@pytest.mark.parametrize("mirror,transform", [("physical", mirror_pad), ("image", flip_vertical)])
+def test_symmetry_loss_is_zero_for_a_mirrored_pair_and_positive_otherwise(mirror, transform):
     torch.manual_seed(0)
     enc = ConvSoftArgmaxEncoder((3, 32, 32))
     left = torch.rand(3, 3, 32, 32)
-    right = flip_vertical(left)  # the right pad sees the left map with rows reversed
-    per_sample = SymmetryRegularizer.per_sample(enc(left), enc, right)
-    assert torch.allclose(per_sample, torch.zeros(3), atol=1e-10)
-    assert (SymmetryRegularizer.per_sample(enc(left), enc, left.flip(-1)) > 0).all()
+    right = transform(left)  # the right pad's view of the mirror-symmetric grasp (both transforms are involutions)
+    reg = SymmetryRegularizer(mirror=mirror)
+    assert torch.allclose(reg.per_sample(enc(left), enc, right), torch.zeros(3), atol=1e-10)
+    assert (reg.per_sample(enc(left), enc, left.flip(-1)) > 0).all()
+    with pytest.raises(ValueError, match=r"reg\.mirror='flip' is not allowed: expected one of \['physical', 'image'\]"):
+        SymmetryRegularizer(mirror="flip")
 
 
 def test_sigmoid_log_std_bound_starts_at_init_and_keeps_a_gradient_past_the_bound():

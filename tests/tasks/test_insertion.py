@@ -79,6 +79,27 @@ def test_grasp_holds_and_residual_field_starts_near_zero(env):
     assert np.linalg.norm(forces[1]) > 0.5 and np.linalg.norm(forces[2]) > 0.5  # both pads push on the peg
 
 
+@pytest.mark.parametrize("tilt", [0.3, -0.3])
+def test_tilted_peg_squeeze_right_mirrored_into_the_left_frame_equals_left_in_every_channel(tilt):
+    # A peg tilted about the closing axis is held mirror-symmetrically, and its rows are not symmetric: the row
+    # flip matters (unflipped, the normal maps differ) and so does the sign of the shear along the rows.
+    import torch
+
+    from vitac.models.symmetry import flip_vertical, mirror_pad
+
+    cfg = {"observations": ["proprio"], "randomization": {"enabled": True, "peg_in_hand_tilt": [tilt, tilt],
+                                                          "ee_rot_low": [0, 0, 0], "ee_rot_high": [0, 0, 0]}}
+    e = TaskEnv(cfg, seed=0)
+    e.reset(seed=4)
+    left, right = (torch.as_tensor(e.task.raw_tactile(e.physics, side)) for side in (0, 1))
+    e.close()
+    scale = left.abs().amax(dim=(1, 2))  # per channel
+    assert (scale > 0).all()
+    assert ((mirror_pad(right) - left).abs().amax(dim=(1, 2)) <= 0.02 * scale).all()
+    assert (left - right).abs()[2].max() > 0.5 * scale[2]  # no flip: the normal maps differ
+    assert (flip_vertical(right) - left).abs()[0].max() > 1.5 * scale[0]  # the image flip: shear_x twice apart
+
+
 def test_centred_symmetric_squeeze_right_flipped_equals_left():
     cfg = {"observations": ["proprio"], "randomization": {"enabled": True, "peg_in_hand_tilt": [0.0, 0.0],
                                                           "ee_rot_low": [0, 0, 0], "ee_rot_high": [0, 0, 0]}}

@@ -1,7 +1,12 @@
-"""Bilateral symmetry prior (paper eq. 6): MSE between h_L and the embedding of the vertically flipped right map.
+"""Bilateral symmetry prior (paper eq. 6): MSE between h_L and the embedding of the right map mirrored into the
+left pad's frame.
 
-"Vertical" is the image's row axis (dim -2). The pads' frames are set up so that for a centred,
-symmetric grasp the right map with its rows reversed equals the left map (see docs/environment.md).
+The pads' frames are set up so that the right pad is the left one turned by pi about the hand's axis: its
+rows (dim -2, the pad's x axis) run the other way. Mirroring a map into the other pad's frame therefore
+reverses its rows and, in the channel of shear along the rows (channel 0, shear_x), the sign: then for any
+mirror-symmetric grasp, a peg tilted about the closing axis included, the mirrored right map equals the left
+map in all three channels (tested on the simulated grasp). The paper's literal image flip reverses the rows
+only (`reg.mirror=image`): a symmetric grasp then still leaves shear_x at twice its size apart.
 """
 
 from __future__ import annotations
@@ -11,31 +16,46 @@ from torch import nn
 
 
 def flip_vertical(image: torch.Tensor) -> torch.Tensor:
-    """Reverse the rows of (..., H, W) images."""
+    """Reverse the rows of (..., H, W) images (the paper's image flip)."""
     return torch.flip(image, dims=(-2,))
 
 
+def mirror_pad(field: torch.Tensor) -> torch.Tensor:
+    """A (..., 3, H, W) force field (shear_x, shear_y, normal) mirrored into the other pad's frame: rows reversed
+    and the shear along them negated."""
+    sign = torch.ones(field.shape[-3], dtype=field.dtype, device=field.device)
+    sign[0] = -1.0
+    return flip_vertical(field) * sign[:, None, None]
+
+
+MIRRORS = {"physical": mirror_pad, "image": flip_vertical}
+
+
 class SymmetryRegularizer(nn.Module):
-    """L_sym = E ||h_L - enc(flip(right))||^2, weighted by lambda_sym in the total loss.
+    """L_sym = E ||h_L - enc(mirror(right))||^2, weighted by lambda_sym in the total loss.
 
     Args:
         lambda_sym: weight of the term (0 turns it off).
+        mirror: "physical" (rows reversed and shear_x negated: the right pad's field in the left pad's frame) or
+            "image" (the paper's literal row flip).
     """
 
-    def __init__(self, lambda_sym: float = 1.0):
+    def __init__(self, lambda_sym: float = 1.0, mirror: str = "physical"):
         super().__init__()
         if isinstance(lambda_sym, bool) or not isinstance(lambda_sym, (int, float)):
             raise ValueError(f"reg.lambda_sym={lambda_sym!r} is not allowed: expected a number >= 0")
         if lambda_sym < 0:
             raise ValueError(f"reg.lambda_sym={lambda_sym!r} is not allowed: expected a number >= 0")
+        if mirror not in MIRRORS:
+            raise ValueError(f"reg.mirror={mirror!r} is not allowed: expected one of {list(MIRRORS)}")
         self.lambda_sym = float(lambda_sym)
+        self.mirror = mirror
 
     @property
     def active(self) -> bool:
         return self.lambda_sym > 0
 
-    @staticmethod
-    def per_sample(left_embedding: torch.Tensor, right_encoder: nn.Module, right_image: torch.Tensor) -> torch.Tensor:
-        """||h_L - enc_R(flip(right))||^2 averaged over embedding dimensions, one value per sample."""
-        mirrored = right_encoder(flip_vertical(right_image))
+    def per_sample(self, left_embedding: torch.Tensor, right_encoder: nn.Module, right_image: torch.Tensor) -> torch.Tensor:
+        """||h_L - enc_R(mirror(right))||^2 averaged over embedding dimensions, one value per sample."""
+        mirrored = right_encoder(MIRRORS[self.mirror](right_image))
         return ((left_embedding - mirrored) ** 2).mean(dim=-1)
