@@ -24,26 +24,41 @@ from vitac.train import train
 from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
-CONFIGS = {"privileged": ["obs=privileged"],
-           "privileged_workers_only": ["obs=privileged", "envs.step_in_main=false"],
-           "privileged_horizon128": ["obs=privileged", "algo.horizon=128", "algo.minibatch_size=512"],
+PRIVILEGED = ["experiment=table1/privileged"]
+# DAgger's cheap update: one pass over the rollout in minibatches of 1,024 (the cpu preset sets PPO's 4 x 256).
+DAGGER = ["algo=dagger", "algo.mini_epochs=1", "algo.minibatch_size=1024", "algo.beta_start=0.0"]
+CONFIGS = {"privileged": PRIVILEGED,
+           "privileged_workers_only": PRIVILEGED + ["envs.step_in_main=false"],
+           "privileged_horizon128": PRIVILEGED + ["algo.horizon=128", "algo.minibatch_size=512"],
            # The rollout and minibatch of the 93.7% segment of docs/results.md, and the same 8,192-transition
            # iteration from twice the environments.
-           "privileged_horizon512": ["obs=privileged", "algo.horizon=512", "algo.minibatch_size=2048"],
-           "privileged_32envs_horizon256": ["obs=privileged", "envs.num_envs=32", "algo.horizon=256",
-                                            "algo.minibatch_size=2048"],
+           "privileged_horizon512": PRIVILEGED + ["algo.horizon=512", "algo.minibatch_size=2048"],
+           "privileged_32envs_horizon256": PRIVILEGED + ["envs.num_envs=32", "algo.horizon=256", "algo.minibatch_size=2048"],
            "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"],
            "wrist_tactile_cmt_sym_workers_only": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "envs.step_in_main=false"],
-           "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "encoder.image.bf16=false"]}
+           "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "encoder.image.bf16=false"],
+           "wrist_tactile_cmt_sym_dagger": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER}
 
 
-def run(name: str, overrides: list, iterations: int) -> dict:
+def untrained_teacher(out: str) -> str:
+    """A privileged policy's checkpoint after one smoke iteration: a teacher for timing distillation (the
+    labels' quality does not change the work per step)."""
+    return train(_compose(PRIVILEGED + ["preset=smoke", "trainer.iterations=1"], out))["checkpoint"]
+
+
+def _compose(overrides: list, out: str):
     GlobalHydra.instance().clear()
     with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
-        cfg = compose("config", overrides=overrides + ["logger=csv", f"trainer.iterations={iterations}",
-                                                         "eval.every=100000", "checkpoint.every_n_epochs=100000"])
-    with tempfile.TemporaryDirectory() as out, open_dict(cfg):
+        cfg = compose("config", overrides=overrides)
+    with open_dict(cfg):
         cfg.output_dir = out
+    return cfg
+
+
+def run(name: str, overrides: list, iterations: int, teacher: str) -> dict:
+    with tempfile.TemporaryDirectory() as out:
+        cfg = _compose(overrides + ["logger=csv", f"trainer.iterations={iterations}", "eval.every=100000",
+                                    "checkpoint.every_n_epochs=100000", f"teacher_ckpt={teacher}"], out)
         result = train(cfg)
         with open(result["metrics_csv"]) as f:
             rows = [r for r in csv.DictReader(f) if r.get("charts/SPS")]
@@ -62,7 +77,9 @@ def main():
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every configuration")
     args = parser.parse_args()
-    rows = [run(name, CONFIGS[name] + args.overrides, args.iterations) for name in args.only]
+    with tempfile.TemporaryDirectory() as teacher_dir:
+        teacher = untrained_teacher(teacher_dir) if any("algo=dagger" in CONFIGS[n] for n in args.only) else "none"
+        rows = [run(name, CONFIGS[name] + args.overrides, args.iterations, teacher) for name in args.only]
     print("| config | preset | envs / workers | env steps/s (rollout + update) | rollout only |\n|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['config']} | {r['preset']} | {r['num_envs']} / {r['workers']} | {r['env_steps_per_s']:.0f} | "
