@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import torch
 from lightning.pytorch.utilities import move_data_to_device
-from tests.test_recurrent_ppo import FakeVectorEnv, _policy
 
+from tests.algos.test_recurrent_ppo import FakeVectorEnv, _policy
 from tests.conftest import compose_config
 from tests.test_train import ROOT, SMOKE, _rows
 from vitac.algos.ppo import PPO
