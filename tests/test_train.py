@@ -671,3 +671,22 @@ def test_a_student_with_the_teachers_observations_and_architecture_converges_to_
     assert len(mse) == 12 and max(mse[-3:]) < 0.2 * mse[0], mse
     betas = [float(r["charts/beta"]) for r in _rows(Path(student["metrics_csv"])) if r.get("charts/beta")]
     assert betas[0] == 1.0 and betas[4:] == [0.0] * 8  # the teacher acts first, then the student alone
+
+
+@pytest.mark.parametrize("override,error,pattern", [
+    ("+foo=1", ValueError, r"foo=1 is not allowed: expected one of \['algo', "),
+    ("+algo.lr_decay=0.9", ValueError, r"algo\.lr_decay=0\.9 is not allowed: expected one of .*'kl_threshold'"),
+    ("+fusion.depth=2", ValueError, r"fusion\.depth=2 is not allowed: .*CrossModalTransformer"),
+    ("+obs.extra=1", ValueError, r"obs\.extra=1 is not allowed: expected one of \['name', 'modalities'\]"),
+    ("logger.wandb=maybe", ValueError, r"logger\.wandb='maybe' is not allowed: expected true or false"),
+    ("init_exclude=5", ValueError, r"init_exclude=5 is not allowed"),
+    ("init_exclude=[policy.head]", ValueError, r"and \[\] unless init_ckpt is set"),
+    ("init_ckpt=/no/such.ckpt", FileNotFoundError, r"init_ckpt='/no/such.ckpt': no such checkpoint file"),
+    ("critic_ckpt=/no/such.ckpt", FileNotFoundError, r"critic_ckpt='/no/such.ckpt': no such checkpoint file"),
+])
+def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_anything_is_built(
+        tmp_path, monkeypatch, override, error, pattern):
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
+    with pytest.raises(error, match=pattern):
+        train(compose_config(SMOKE + [override], output_dir=tmp_path / "x"))

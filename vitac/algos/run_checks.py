@@ -4,12 +4,16 @@ is allowed. `vitac.evaluate` checks its own keys with the same helpers (`vitac/u
 
 from __future__ import annotations
 
+import inspect
+
 import torch
 
 from vitac.algos.buffer import check_batch_layout
 from vitac.algos.curriculum import RandomizationCurriculum
 from vitac.algos.dagger import check_dagger
 from vitac.algos.lr_schedule import make_lr_schedule
+from vitac.tasks import import_object
+from vitac.utils.checkpoint import resolve_checkpoint
 from vitac.utils.checks import (
     check_flag,
     check_int,
@@ -48,8 +52,50 @@ def check_ppo(algo: dict, num_envs: int) -> None:
     check_batch_layout(algo["horizon"], num_envs, algo["seq_len"], algo["minibatch_size"])
 
 
+RUN_KEYS = ("seed", "resume", "row", "critic_ckpt", "freeze_critic", "teacher_ckpt", "init_ckpt", "init_exclude",
+            "output_dir")
+# Groups without a `_target_`, and their keys; the others' keys are their target's parameters.
+PLAIN_GROUPS = {"task": None, "obs": ("name", "modalities"), "preset": ("name",), "logger": ("wandb", "project", "name"),
+                "trainer": ("accelerator", "rollout_threads", "update_threads", "deterministic", "iterations")}
+TARGET_GROUPS = ("algo", "envs", "curriculum", "eval", "checkpoint", "fusion", "reg", "head", "critic", "encoder.image",
+                 "encoder.vector")
+
+
+def check_keys(cfg: dict) -> None:
+    """Refuse a key the run would silently ignore (`+foo=1`, `+algo.lr_decay=0.9`), naming it and what is allowed:
+    top-level keys, plain groups' keys, and each built group's keys against its target's parameters."""
+    allowed = set(RUN_KEYS) | set(PLAIN_GROUPS) | {g.split(".")[0] for g in TARGET_GROUPS}
+    for key, value in cfg.items():
+        if key not in allowed:
+            refuse(key, value, f"one of {sorted(allowed)}")
+    for group, keys in PLAIN_GROUPS.items():
+        for key, value in (cfg[group].items() if keys else ()):
+            if key not in keys:
+                refuse(f"{group}.{key}", value, f"one of {list(keys)}")
+    for group in TARGET_GROUPS:
+        node = cfg
+        for part in group.split("."):
+            node = node[part]
+        if node.get("_target_") is None:
+            continue
+        params = inspect.signature(import_object(node["_target_"])).parameters
+        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            continue  # a target taking **kwargs accepts any key
+        for key, value in node.items():
+            if not key.startswith("_") and key not in params:
+                refuse(f"{group}.{key}", value, f"one of {sorted(params)} (the parameters of {node['_target_']})")
+
+
 def check_run(cfg: dict) -> dict:
     """Every group a training run builds from, checked; returns `envs` with `num_workers: auto` resolved."""
+    check_keys(cfg)
+    check_flag("freeze_critic", cfg["freeze_critic"])
+    check_flag("logger.wandb", cfg["logger"]["wandb"])
+    if not isinstance(cfg["init_exclude"], list) or (cfg["init_exclude"] and not cfg["init_ckpt"]):
+        refuse("init_exclude", cfg["init_exclude"], "a list of parameter-name prefixes, and [] unless init_ckpt is set")
+    for key in ("init_ckpt", "critic_ckpt"):
+        if cfg[key] and not resolve_checkpoint(cfg[key]).is_file():
+            raise FileNotFoundError(f"{key}={cfg[key]!r}: no such checkpoint file")
     seed = cfg["seed"]
     if seed is not None and not is_int(seed):
         refuse("seed", seed, "an integer or null")

@@ -108,7 +108,10 @@ class TaskEnv(gym.Env):
         """Everything needed to continue this environment exactly: physics, task (with randomized model
         fields), RNG and episode flags."""
         physics = self._env.physics
+        # qacc_warmstart seeds the next constraint solve: without it a restored environment's contacts solve from
+        # another start and its trajectory drifts from the original's within a few steps.
         return dict(physics=physics.get_state().copy(), time=physics.data.time, ctrl=physics.data.ctrl.copy(),
+                    qacc_warmstart=physics.data.qacc_warmstart.copy(),
                     task=self._env.task.get_state(physics), rng=self._env.random_state.get_state(),
                     needs_reset=self._needs_reset, composer_reset_next=self._env._reset_next_step)
 
@@ -120,6 +123,8 @@ class TaskEnv(gym.Env):
         if "time" in state:  # dm_control's state leaves it out; the task's per-state values are keyed by it
             physics.data.time = state["time"]
         physics.forward()
+        if "qacc_warmstart" in state:  # absent from checkpoints written before it was kept
+            physics.data.qacc_warmstart[:] = state["qacc_warmstart"]
         self._env.random_state.set_state(state["rng"])
         self._needs_reset = state["needs_reset"]
         self._env._reset_next_step = state["composer_reset_next"]
