@@ -101,7 +101,7 @@ def test_bad_lambda_sym_is_refused_with_key_value_and_rule(value):
 
 def test_observation_that_does_not_fit_its_encoder_is_refused():
     cfg = compose_config(["task.taxel_rows=6", "task.taxel_cols=6", "obs=tactile", "fusion=naive"])
-    with pytest.raises(ValueError, match=r"too small for conv kernel"):
+    with pytest.raises(ValueError, match=r"task\.taxel_rows x task\.taxel_cols"):
         build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 
@@ -197,3 +197,21 @@ def test_launcher_configs_compose(launcher, target):
     with initialize_config_dir(version_base="1.3", config_dir=CONF):
         cfg = compose("config", overrides=[f"hydra/launcher={launcher}"], return_hydra_config=True)
     assert cfg.hydra.launcher._target_.endswith(target)
+
+
+@pytest.mark.parametrize("override,pattern", [
+    ("head.units=[256,-128,64]", r"head\.units=\[256, -128, 64\] is not allowed: expected a list of any number of positive"),
+    ("encoder.vector.hidden=[-5]", r"encoder\.vector\.hidden=\[-5\] is not allowed"),
+    ("head.hidden=0", r"head\.hidden=0 is not allowed: expected a positive integer"),
+    ("head.layers=0", r"head\.layers=0 is not allowed: expected a positive integer"),
+    ("encoder.image.kernels=[8,4]", r"encoder\.image\.kernels=\[8, 4\] is not allowed: expected a list of 3 positive"),
+    ("encoder.image.channels=[32,64,0]", r"encoder\.image\.channels=\[32, 64, 0\] is not allowed"),
+    ("encoder.image.bf16=maybe", r"encoder\.image\.bf16='maybe' is not allowed: expected true or false"),
+    ("fusion.dropout=1.5", r"fusion\.dropout=1\.5 is not allowed: expected a number in \[0, 1\)"),
+    ("task.taxel_rows=4", r"encoder\.image\.kernels=\[8, 4, 3\] is not allowed with an observation of shape \(3, 4, 32\)"
+                          r".*task\.taxel_rows"),
+])
+def test_bad_model_values_are_refused_naming_their_key(override, pattern):
+    cfg = compose_config([override])
+    with pytest.raises(ValueError, match=pattern):
+        build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))

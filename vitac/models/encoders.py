@@ -5,6 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from vitac.utils.checks import check_flag, check_widths
+
 
 class SpatialSoftArgmax(nn.Module):
     """Expected (x, y) image coordinates in [-1, 1] of each channel's softmax: (B, C, H, W) -> (B, 2C).
@@ -41,14 +43,19 @@ class ConvSoftArgmaxEncoder(nn.Module):
 
     def __init__(self, in_shape, channels=(32, 64, 64), kernels=(8, 4, 3), strides=(2, 1, 1), bf16: bool = False):
         super().__init__()
+        for name, value in (("channels", channels), ("kernels", kernels), ("strides", strides)):
+            check_widths(f"encoder.image.{name}", value, len(channels) if name != "channels" else None)
+        check_flag("encoder.image.bf16", bf16)
         layers, c = [], in_shape[0]
         h, w = in_shape[1], in_shape[2]
         for out, k, s in zip(channels, kernels, strides, strict=True):
             layers += [nn.Conv2d(c, out, k, s), nn.ReLU()]
             c, h, w = out, (h - k) // s + 1, (w - k) // s + 1
             if h < 1 or w < 1:
-                raise ValueError(f"observation shape {tuple(in_shape)} is too small for conv kernel {k} stride {s}: "
-                                 f"expected at least {k}x{k} pixels at that layer")
+                raise ValueError(f"encoder.image.kernels={list(kernels)} is not allowed with an observation of shape "
+                                 f"{tuple(in_shape)}: it is too small for conv kernel {k} stride {s}, which needs at "
+                                 f"least {k}x{k} pixels at that layer (tactile maps are task.taxel_rows x "
+                                 f"task.taxel_cols, camera images task.camera_size square)")
         # channels-last: oneDNN's convolutions skip layout reorders (measured ~5% at batch 1, ~20% in training).
         self.conv = nn.Sequential(*layers[:-1]).to(memory_format=torch.channels_last)  # soft-argmax follows conv3
         self.softargmax = SpatialSoftArgmax(h, w)
@@ -70,6 +77,7 @@ class VectorEncoder(nn.Module):
 
     def __init__(self, in_dim: int, hidden: tuple = ()):
         super().__init__()
+        check_widths("encoder.vector.hidden", hidden)
         layers, d = [], in_dim
         for h in hidden:
             layers += [nn.Linear(d, h), nn.ELU()]

@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from vitac.utils.checks import is_number, refuse
+
 ROLE_ORDER = ("vision", "left", "right")
 
 
@@ -74,6 +76,8 @@ class CrossModalTransformer(nn.Module):
 
     def __init__(self, embed_dim: int, num_inputs: int = 3, num_heads: int = 4, dropout: float = 0.0):
         super().__init__()
+        if not is_number(dropout) or not 0.0 <= dropout < 1.0:
+            refuse("fusion.dropout", dropout, "a number in [0, 1)")
         if num_heads < 1 or embed_dim % num_heads:
             raise ValueError(f"fusion.num_heads={num_heads!r} is not allowed: expected a positive divisor of the "
                              f"embedding size {embed_dim}")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from vitac.utils.checks import check_int, check_widths
+
 
 def mlp(in_dim: int, units, activation=nn.ELU) -> tuple[nn.Sequential, int]:
     layers, d = [], in_dim
@@ -40,6 +42,9 @@ class RecurrentActorHead(nn.Module):
                  units=(256, 128, 64), log_std_min: float = -5.0, log_std_max: float = 1.0,
                  log_std_init: float = 0.0, log_std_bound: str = "clamp", log_std_mode: str = "state"):
         super().__init__()
+        for name, value in (("action_dim", action_dim), ("hidden", hidden), ("layers", layers)):
+            check_int(f"head.{name}", value, 1)
+        check_widths("head.units", units)
         if log_std_min >= log_std_max:
             raise ValueError(f"head.log_std_min={log_std_min!r} is not allowed: expected less than "
                              f"head.log_std_max={log_std_max!r}")

@@ -65,3 +65,10 @@ def resolve_threads(key: str, threads) -> int:
     if not is_int(threads) or threads < 1:
         refuse(key, threads, "a positive integer or auto")
     return threads
+
+
+def check_widths(key: str, value, length: int | None = None) -> None:
+    """A list of positive integers (layer widths or sizes), of `length` items when given."""
+    if (not isinstance(value, (list, tuple)) or not all(is_int(v) and v >= 1 for v in value)
+            or (length is not None and len(value) != length)):
+        refuse(key, value, f"a list of {length or 'any number of'} positive integers")
