@@ -56,7 +56,8 @@ class DAgger(RolloutAlgorithm):
         check_dagger(dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, grad_norm=grad_norm,
                           loss=loss, beta_start=beta_start, beta_end=beta_end, beta_iterations=beta_iterations,
                           student_actions=student_actions), horizon, envs.num_envs, seq_len)
-        self.teacher = teacher.requires_grad_(False).eval()
+        # Not a submodule: the teacher stays out of the student's checkpoints, optimizer and train/eval switches.
+        self._teacher = (teacher.requires_grad_(False).eval(),)
         self.teacher_keys = teacher.image_keys + teacher.vector_keys + (["critic_state"] if teacher.critic else [])
         missing = [k for k in self.teacher_keys if k not in envs.single_observation_space.spaces]
         if missing:
@@ -66,10 +67,9 @@ class DAgger(RolloutAlgorithm):
                        student_actions=student_actions)
         self._teacher_state = None
 
-    def train(self, mode: bool = True):
-        super().train(mode)
-        self.teacher.eval()  # the teacher labels as it was evaluated, whatever mode the student is in
-        return self
+    @property
+    def teacher(self) -> VisuoTactilePolicy:
+        return self._teacher[0]
 
     def configure_optimizers(self):
         return torch.optim.Adam([p for p in self.policy.parameters() if p.requires_grad], lr=self.hp["lr"])
@@ -83,6 +83,7 @@ class DAgger(RolloutAlgorithm):
     # ----------------------------------------------------------------------------------- rollout
     def on_train_start(self):
         super().on_train_start()
+        self.teacher.to(self.device)
         if self._teacher_state is None:  # a fresh run; a resumed one restored it in load_extra_state
             self._teacher_state = self.teacher.initial_state(self.envs.num_envs, self.device)
 

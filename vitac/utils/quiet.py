@@ -19,6 +19,8 @@ def quiet_third_party() -> None:
     logging.getLogger("lightning.pytorch.utilities.rank_zero").addFilter(_DropTips())
     warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\).*")
     warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"(wandb|lightning|torch)\b")
+    # A resume writes into a new run directory by design (resume=<old> hydra.run.dir=<new>): best.ckpt starts anew.
+    warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
 
 
 class OfflineWandbLogger(WandbLogger):
