@@ -690,3 +690,20 @@ def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_an
     monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(error, match=pattern):
         train(compose_config(SMOKE + [override], output_dir=tmp_path / "x"))
+
+
+def test_a_checkpoint_written_before_the_layout_change_still_loads(tmp_path):
+    # Runs before 2026-12-01 stored `env` for `task`, the default cmt + sym beside image-free observations (never
+    # built) and the critic under models/head.py: load_policy reads them as the policy they always were.
+    run = train(compose_config(["preset=smoke", "experiment=table1/privileged"], output_dir=tmp_path / "run"))
+    checkpoint = torch.load(run["checkpoint"], weights_only=False)
+    config = checkpoint["vitac_config"]
+    config["env"] = {k: v for k, v in config.pop("task").items() if k != "_target_"}
+    config["fusion"] = {"_target_": "vitac.models.fusion.CrossModalTransformer", "_partial_": True, "num_heads": 4}
+    config["reg"] = {"_target_": "vitac.models.symmetry.SymmetryRegularizer", "lambda_sym": 1.0}
+    config["critic"]["_target_"] = "vitac.models.head.StateCritic"
+    torch.save(checkpoint, tmp_path / "old.ckpt")
+    old, _, settings = load_policy(tmp_path / "old.ckpt")
+    new, _, _ = load_policy(run["checkpoint"])
+    assert old.fusion is None and not old.uses_symmetry and settings["observations"][-1] == "critic_state"
+    assert all(torch.equal(a, b) for a, b in zip(old.state_dict().values(), new.state_dict().values(), strict=True))

@@ -42,6 +42,8 @@ def load_policy(ckpt: str | Path, key: str = "ckpt"):
     """Rebuild the policy from the resolved config stored in the checkpoint, then load its weights."""
     checkpoint = load_checkpoint(ckpt, key=key)
     cfg = OmegaConf.create(checkpoint["vitac_config"])
+    if cfg.critic.get("_target_") == "vitac.models.head.StateCritic":  # runs from before models/critic.py
+        cfg.critic._target_ = "vitac.models.critic.StateCritic"
     settings = task_settings(cfg)
     task_config = make_task_config(settings)
     if all(task_config.observation_specs()[k].kind != "image" for k in cfg.obs.modalities):

@@ -125,15 +125,3 @@ class RecurrentActorHead(nn.Module):
             cs.append(c_l)
             x = h_l
         return x, (torch.stack(hs), torch.stack(cs))
-
-
-class StateCritic(nn.Module):
-    """Asymmetric critic: an ELU MLP on the privileged critic state (fully observed, so no memory needed)."""
-
-    def __init__(self, in_dim: int, units=(256, 128, 64)):
-        super().__init__()
-        self.mlp, d = mlp(in_dim, units)
-        self.value = nn.Linear(d, 1)
-
-    def forward(self, critic_state: torch.Tensor) -> torch.Tensor:
-        return self.value(self.mlp(critic_state)).squeeze(-1)
