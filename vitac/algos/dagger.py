@@ -27,7 +27,8 @@ STUDENT_ACTIONS = ("mean", "sample")
 
 class DAgger(RolloutAlgorithm):
     """The student's actions (or, with probability beta, the teacher's) drive the environments; the loss is the
-    distance to the teacher's mean action, plus `lambda_sym * L_sym` when the student's regularizer is on.
+    distance to the teacher's mean action within the action bounds, plus `lambda_sym * L_sym` when the student's
+    regularizer is on.
 
     Args:
         policy: the student.
@@ -100,7 +101,9 @@ class DAgger(RolloutAlgorithm):
         # The label of step t: the teacher's mean on the observation at t, before the environments step.
         inputs, starts = self.teacher.step_inputs({k: obs[k] for k in self.teacher_keys}, self._starts)
         label, _, _, self._teacher_state = self.teacher(inputs, self._teacher_state, starts)
-        label = label[0].cpu()
+        # The action the teacher would execute: its mean within the action bounds (beyond them every value
+        # executes the same, and matching it there would only spend the student's capacity).
+        label = label[0].cpu().clamp(-1.0, 1.0)
         buf.labels[t] = label
         student = mean
         if self.hp["student_actions"] == "sample":
