@@ -67,6 +67,5 @@ def load_teacher(cfg: DictConfig, settings: dict) -> dict:
         raise ValueError("teacher_ckpt=None is not allowed with this algo: pass a trained policy, e.g. "
                          "teacher_ckpt=pretrained/privileged")
     teacher, _, _ = load_policy(cfg.teacher_ckpt, key="teacher_ckpt")
-    keys = teacher.image_keys + teacher.vector_keys + (["critic_state"] if teacher.critic else [])
-    settings["observations"] += [k for k in keys if k not in settings["observations"]]
+    settings["observations"] += [k for k in teacher.input_keys if k not in settings["observations"]]
     return dict(teacher=teacher)

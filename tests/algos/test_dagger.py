@@ -34,7 +34,7 @@ class _FunctionTeacher(torch.nn.Module):
     """A teacher whose action is a known function of the observation it is given: tanh(proprio[:6] + step
     count since its episode started), so a label taken from the wrong step, or a state not reset, shows."""
 
-    image_keys, vector_keys, critic = [], ["proprio"], None
+    input_keys = ["proprio"]
 
     def step_inputs(self, obs, starts):
         return {k: torch.as_tensor(v)[None] for k, v in obs.items()}, starts[None]

@@ -59,8 +59,7 @@ class DAgger(RolloutAlgorithm):
                           student_actions=student_actions), horizon, envs.num_envs, seq_len)
         # Not a submodule: the teacher stays out of the student's checkpoints, optimizer and train/eval switches.
         self._teacher = (teacher.requires_grad_(False).eval(),)
-        self.teacher_keys = teacher.image_keys + teacher.vector_keys + (["critic_state"] if teacher.critic else [])
-        missing = [k for k in self.teacher_keys if k not in envs.single_observation_space.spaces]
+        missing = [k for k in teacher.input_keys if k not in envs.single_observation_space.spaces]
         if missing:
             raise ValueError(f"teacher_ckpt: the teacher reads {missing}, which the environments do not observe")
         self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, grad_norm=grad_norm, loss=loss,
@@ -99,7 +98,7 @@ class DAgger(RolloutAlgorithm):
         if getattr(buf, "labels", None) is None:
             buf.labels = torch.zeros_like(buf.actions)
         # The label of step t: the teacher's mean on the observation at t, before the environments step.
-        inputs, starts = self.teacher.step_inputs({k: obs[k] for k in self.teacher_keys}, self._starts)
+        inputs, starts = self.teacher.step_inputs({k: obs[k] for k in self.teacher.input_keys}, self._starts)
         label, _, _, self._teacher_state = self.teacher(inputs, self._teacher_state, starts)
         # The action the teacher would execute: its mean within the action bounds (beyond them every value
         # executes the same, and matching it there would only spend the student's capacity).

@@ -62,6 +62,11 @@ class VisuoTactilePolicy(nn.Module):
         self.feature_dim = features
 
     @property
+    def input_keys(self) -> list[str]:
+        """Every observation `forward` reads: the actor's images and vectors, and the critic state with a critic."""
+        return self.image_keys + self.vector_keys + (["critic_state"] if self.critic is not None else [])
+
+    @property
     def device(self) -> torch.device:
         return next(self.parameters()).device
 
