@@ -55,10 +55,10 @@ def _compose(overrides: list, out: str):
     return cfg
 
 
-def run(name: str, overrides: list, iterations: int, teacher: str) -> dict:
+def run(name: str, overrides: list, iterations: int) -> dict:
     with tempfile.TemporaryDirectory() as out:
         cfg = _compose(overrides + ["logger=csv", f"trainer.iterations={iterations}", "eval.every=100000",
-                                    "checkpoint.every_n_epochs=100000", f"teacher_ckpt={teacher}"], out)
+                                    "checkpoint.every_n_epochs=100000"], out)
         result = train(cfg)
         with open(result["metrics_csv"]) as f:
             rows = [r for r in csv.DictReader(f) if r.get("charts/SPS")]
@@ -78,8 +78,10 @@ def main():
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every configuration")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as teacher_dir:
-        teacher = untrained_teacher(teacher_dir) if any("algo=dagger" in CONFIGS[n] for n in args.only) else "none"
-        rows = [run(name, CONFIGS[name] + args.overrides, args.iterations, teacher) for name in args.only]
+        teacher = untrained_teacher(teacher_dir) if any("algo=dagger" in CONFIGS[n] for n in args.only) else None
+        rows = [run(name, CONFIGS[name] + args.overrides
+                    + ([f"teacher_ckpt={teacher}"] if "algo=dagger" in CONFIGS[name] else []), args.iterations)
+                for name in args.only]
     print("| config | preset | envs / workers | env steps/s (rollout + update) | rollout only |\n|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['config']} | {r['preset']} | {r['num_envs']} / {r['workers']} | {r['env_steps_per_s']:.0f} | "
