@@ -467,8 +467,14 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
     ("trainer.update_threads=0", r"trainer\.update_threads=0 is not allowed: expected a positive integer or auto"),
     ("envs.num_workers=many", r"envs\.num_workers='many' is not allowed: expected an integer >= 0 or auto"),
     ("trainer.deterministic=maybe", r"trainer\.deterministic='maybe' is not allowed: expected true or false"),
+    ("eval.every=0", r"eval\.every=0 is not allowed: expected a positive integer"),
+    ("eval.episodes=-1", r"eval\.episodes=-1 is not allowed"),
+    ("eval.video_every=-1", r"eval\.video_every=-1 is not allowed"),
+    ("checkpoint.every_n_epochs=0", r"checkpoint\.every_n_epochs=0 is not allowed"),
+    ("curriculum=randomization curriculum.step=0", r"curriculum\.step=0 is not allowed"),
+    ("envs.step_in_main=maybe", r"envs\.step_in_main='maybe' is not allowed"),
 ])
-def test_bad_algo_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
+def test_bad_run_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
     monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
     monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(ValueError, match=pattern):
@@ -536,20 +542,6 @@ def test_every_algo_key_has_its_check():
 
     checked = set(c.POSITIVE_INTS + c.POSITIVE_NUMBERS + c.NON_NEGATIVE_NUMBERS + c.FRACTIONS + c.FLAGS + c.SCHEDULE)
     assert set(compose_config([]).algo) - {"_target_", "_partial_"} == checked
-
-
-@pytest.mark.parametrize("override,pattern", [
-    ("eval.every=0", r"eval\.every=0 is not allowed: expected a positive integer"),
-    ("eval.episodes=-1", r"eval\.episodes=-1 is not allowed"),
-    ("eval.video_every=-1", r"eval\.video_every=-1 is not allowed"),
-    ("checkpoint.every_n_epochs=0", r"checkpoint\.every_n_epochs=0 is not allowed"),
-    ("curriculum=randomization curriculum.step=0", r"curriculum\.step=0 is not allowed"),
-    ("envs.step_in_main=maybe", r"envs\.step_in_main='maybe' is not allowed"),
-])
-def test_bad_run_group_values_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
-    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
-    with pytest.raises(ValueError, match=pattern):
-        train(compose_config(SMOKE + override.split(), output_dir=tmp_path / "x"))
 
 
 def test_evaluate_reports_success_with_interval(tmp_path, capfd):
