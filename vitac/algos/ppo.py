@@ -57,10 +57,9 @@ class PPO(RolloutAlgorithm):
         super().__init__(policy, envs, horizon, seq_len, seed, rollout_threads, update_threads, run_config, curriculum)
         check_batch_layout(horizon, envs.num_envs, seq_len, minibatch_size)
         self.value_normalizer = RunningNormalizer((), clip=float("inf"))
-        self.hp = dict(horizon=horizon, seq_len=seq_len, minibatch_size=minibatch_size, mini_epochs=mini_epochs,
-                       lr=lr, gamma=gamma, gae_lambda=gae_lambda, clip=clip, critic_coef=critic_coef,
-                       clip_value=clip_value, grad_norm=grad_norm, entropy_coef=entropy_coef,
-                       bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
+        self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, gamma=gamma, gae_lambda=gae_lambda,
+                       clip=clip, critic_coef=critic_coef, clip_value=clip_value, grad_norm=grad_norm,
+                       entropy_coef=entropy_coef, bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
                        normalize_value=normalize_value, normalize_advantage=normalize_advantage)
         self.lr_schedule = make_lr_schedule(lr_schedule, kl_threshold, lr_schedule_every, lr_min, lr_max, lr)
 

@@ -54,7 +54,8 @@ def check_ppo(algo: dict, num_envs: int) -> None:
 
 RUN_KEYS = ("seed", "resume", "row", "critic_ckpt", "freeze_critic", "teacher_ckpt", "init_ckpt", "init_exclude",
             "output_dir")
-# Groups without a `_target_`, and their keys; the others' keys are their target's parameters.
+# Groups not built through `_target_`, and their keys (task: its config class refuses unknown keys itself); the
+# other groups' keys are their target's parameters.
 PLAIN_GROUPS = {"task": None, "obs": ("name", "modalities"), "preset": ("name",), "logger": ("wandb", "project", "name"),
                 "trainer": ("accelerator", "rollout_threads", "update_threads", "deterministic", "iterations")}
 TARGET_GROUPS = ("algo", "envs", "curriculum", "eval", "checkpoint", "fusion", "reg", "head", "critic", "encoder.image",
