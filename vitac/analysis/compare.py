@@ -14,14 +14,15 @@ from vitac.analysis.curves import column, read_segments, smooth
 
 
 def wall_clock_hours(rows) -> list[tuple[float, float]]:
-    """(env steps, hours of training so far) per iteration, from each iteration's steps and env steps/s."""
-    out, hours, previous = [], 0.0, None
+    """(env steps, hours of training so far) per iteration, from each iteration's steps and env steps/s (the
+    run starting at 0 env steps)."""
+    out, hours, previous = [], 0.0, 0.0
     for r in rows:
         try:
             steps, sps = float(r["charts/env_steps"]), float(r["charts/SPS"])
         except (KeyError, ValueError):
             continue
-        if previous is not None and sps > 0:
+        if sps > 0:
             hours += (steps - previous) / sps / 3600
         previous = steps
         out.append((steps, hours))
