@@ -20,9 +20,10 @@ def _space(spec) -> gym.spaces.Box:
 class TaskEnv(gym.Env):
     """One environment of a task with gymnasium's API.
 
-    composer ends every episode at the time limit with discount 1: that is reported as `truncated`
-    (bootstrap), and only a discount of 0 as `terminated`. `info` carries `success` (judged at the
-    last step), `steps_to_success` (first step the criterion held, -1 if never) and `keypoint_distance`.
+    composer ends an episode at the time limit with discount 1: that is reported as `truncated`
+    (bootstrap), and a discount of 0 (a task's success or failure, or diverged physics) as `terminated`.
+    `info` carries `success` (judged at the last step), `steps_to_success` (first step the criterion held,
+    -1 if never) and `keypoint_distance`.
 
     Args:
         config: task settings (a task's config, or a dict of its keys with `_target_` naming its class;
@@ -78,7 +79,7 @@ class TaskEnv(gym.Env):
         info = self._info()
         if self._needs_reset:  # how the episode ended, for evaluation reports
             info.update(self._env.task.outcome(self._env.physics))
-            if terminated:  # the task only ends episodes by time-out: composer ended a diverged simulation
+            if self._env.diverged:  # composer ended a diverged simulation
                 info.update(outcome="physics diverged", success=False)
         return dict(timestep.observation), float(timestep.reward), bool(terminated), bool(truncated), info
 

@@ -33,6 +33,7 @@ class LeanEnvironment(composer.Environment):
             raise ValueError(f"{type(self).__name__} steps the physics substeps in one call: it cannot run substep "
                              f"hooks {substep_hooks} or buffer, delay or transform observables {sampled}")
         super().__init__(task, **kwargs)
+        self.diverged = False  # whether the last step ended its episode because the physics diverged
 
     def add_extra_hook(self, hook_name, hook_callable):
         if hook_name in ("before_substep", "after_substep"):
@@ -54,6 +55,7 @@ class LeanEnvironment(composer.Environment):
                 raise
             logging.warning(error)
             diverged = True
+        self.diverged = diverged
         self._hooks.after_step(physics, self._random_state)
         if diverged:
             reward, discount, last = 0.0, 0.0, True

@@ -95,7 +95,7 @@ class GraspedPartTask(composer.Task):
             pad_sites=[bind(s).element_id for s in self.gripper.pad_sites],
             pad_geoms=[bind(g).element_id for g in self.gripper.pads],
             held_body=bind(self.held.body).element_id,
-            held_geoms={bind(self.held.geom).element_id, bind(self.held.grasp_geom).element_id},
+            held_geoms=set(np.flatnonzero(m.geom_bodyid == bind(self.held.body).element_id).tolist()),
             held_qpos=m.jnt_qposadr[m.body_jntadr[bind(self._held_frame).element_id]],
             # bind() does not accept mocap bodies: look the frame up by name.
             fixed_mocap=m.body_mocapid[m.body(self._fixed_frame.full_identifier).id],

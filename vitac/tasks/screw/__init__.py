@@ -1,0 +1,1 @@
+"""Factory's nut-on-bolt screw task on the shared robot and sensors."""

@@ -1,0 +1,190 @@
+"""Nut-on-bolt screwing as a dm_control composer Task (Factory's NutBoltScrew on the shared robot and sensors)."""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from vitac.sim.gripper import PAD_LENGTH
+from vitac.tasks.base import GraspedPartTask
+from vitac.tasks.insertion.task import keypoint_offsets
+from vitac.tasks.screw import props
+from vitac.tasks.screw.config import ScrewConfig, thread_yaw
+
+ROTATION_AXIS = 5  # the action's world z-rotation component (negative: tightening, clockwise seen from above)
+ACTION_OF_JOINT = [0, 1, 2, 5, 4, 3]  # the hand's joints (x, y, z, yaw, pitch, roll) against the action's axes
+
+
+class ScrewTask(GraspedPartTask):
+    """Screw a grasped nut down a fixed bolt; Factory's actions, reward, success and failures.
+
+    The episode ends at success (the nut within `success_pitches` thread pitches of resting on the bolt's
+    head) or failure (the nut slipped in the grasp, fell off the bolt or moved `far_distance` away), both
+    terminations, or at the time limit, a truncation.
+
+    Args:
+        config: validated task settings.
+        offscreen_size: offscreen render buffer (pixels); the camera size unless a tool renders larger views.
+    """
+
+    config: ScrewConfig
+
+    def __init__(self, config: ScrewConfig, offscreen_size: int | None = None):
+        self._keypoints = keypoint_offsets(config.num_keypoints, config.keypoint_length)
+        self._axes = np.asarray(config.action_axes, bool)
+        self._held_joints = ~self._axes[ACTION_OF_JOINT]
+        self._hold_target = np.zeros(6)
+        super().__init__(config, offscreen_size)
+
+    def _build_parts(self):
+        config = self.config
+        self.nut = props.Nut(friction=config.nut_friction, segments_per_turn=config.segments_per_turn)
+        self.bolt = props.Bolt(friction=config.bolt_friction, contact_timeconst=config.bolt_contact_timeconst,
+                               segments_per_turn=config.segments_per_turn)
+        self.held_shape = self.nut.contact_shape()
+        self._attach_parts(self.nut, self.bolt)
+
+    def initialize_episode(self, physics, random_state):
+        r, ids = self.config.randomization, self._ids
+
+        def sample(low, high):
+            # Uniform in [low, high] shrunk about its midpoint by the curriculum's scale (1: the full range).
+            low, high = np.asarray(low, float), np.asarray(high, float)
+            mid = 0.5 * (low + high)
+            return mid + self.randomization_scale * (random_state.uniform(low, high) - mid) if r.enabled else mid
+
+        bolt = np.concatenate([sample(r.bolt_pos_low, r.bolt_pos_high), [0.0]])
+        physics.data.mocap_pos[ids["fixed_mocap"]] = bolt
+        self._set_pad_compliance(physics, sample(*r.pad_stiffness), sample(*r.pad_damping))
+        physics.model.dof_damping[ids["hand_dof"]] = self._nominal_damping + sample(*r.joint_damping_noise)
+        # The nut engaged on the thread `turns` above its goal: its height fixes its yaw.
+        height = props.BOLT_HEAD_HEIGHT + float(sample(*r.start_turns)) * props.PITCH
+        nut_yaw = thread_yaw(height)
+        # The hand grips two opposite flats: its yaw is the nut's modulo a flat (60 deg), nearest to zero.
+        flat = math.pi / 3
+        grip_yaw = nut_yaw - flat * round(nut_yaw / flat)
+        hand_x = np.array([math.cos(grip_yaw), math.sin(grip_yaw), 0.0])
+        depth, offset = float(sample(*r.grasp_depth)), float(sample(*r.grasp_offset))
+        tcp = bolt + np.array([0.0, 0.0, height - depth]) - offset * hand_x
+        # The hand's yaw joint turns about its own z axis, which points down: world yaw is minus the joint's.
+        qpos = np.concatenate([tcp, [-grip_yaw, 0.0, 0.0]])
+        physics.data.qpos[:] = physics.model.qpos0
+        physics.data.qvel[:] = 0.0
+        physics.data.qpos[ids["hand_qpos"]] = qpos
+        physics.data.ctrl[ids["hand_act"]] = qpos
+        self._hold_target = qpos.copy()
+        nut_quat = np.array([math.cos(0.5 * nut_yaw), 0.0, 0.0, math.sin(0.5 * nut_yaw)])
+        physics.data.qpos[ids["held_qpos"]:ids["held_qpos"] + 7] = np.concatenate([bolt + [0, 0, height], nut_quat])
+        self._settle_grasp(physics, props.NUT_APOTHEM)
+
+    def before_step(self, physics, action, random_state):
+        action = np.clip(np.asarray(action, float), -1.0, 1.0)
+        if self.config.unidirectional_rotation:
+            action[ROTATION_AXIS] = -0.5 * (action[ROTATION_AXIS] + 1.0)
+        super().before_step(physics, np.where(self._axes, action, 0.0), random_state)
+        # The axes the policy does not drive hold the episode's start pose (a floating hand would drift).
+        physics.data.ctrl[self._ids["hand_act"][self._held_joints]] = self._hold_target[self._held_joints]
+
+    # ------------------------------------------------------------------------------------ task state
+    def goal_pos(self, physics) -> np.ndarray:
+        """Where the nut's bottom centre rests when screwed down: the top of the bolt's head."""
+        return self.fixed_pos(physics) + np.array([0.0, 0.0, props.BOLT_HEAD_HEIGHT])
+
+    def nut_pos(self, physics) -> np.ndarray:
+        return physics.data.xpos[self._ids["held_body"]]
+
+    def _up_keypoints(self, centre: np.ndarray, up: np.ndarray) -> np.ndarray:
+        return centre + self._keypoints[:, None] * up
+
+    def keypoint_distances(self, physics) -> tuple[float, float]:
+        """Factory's two reward distances (m), each summed over the keypoints: the nut's keypoints to the goal's,
+        and the fingertips' to the nut's (how far the nut moved in the grasp)."""
+        return self._per_state("keypoint_distances", physics, lambda: self._keypoint_distances(physics))
+
+    def _keypoint_distances(self, physics) -> tuple[float, float]:
+        d, ids = physics.data, self._ids
+        nut_up = d.xmat[ids["held_body"]].reshape(3, 3)[:, 2]
+        nut = self._up_keypoints(self.nut_pos(physics), nut_up)
+        goal = self._up_keypoints(self.goal_pos(physics), np.array([0.0, 0.0, 1.0]))
+        hand_up = -d.xmat[ids["hand_body"]].reshape(3, 3)[:, 2]  # the hand's z axis points at the fingertips
+        fingers = self._up_keypoints(d.site_xpos[ids["tcp"]], hand_up)
+        return (float(np.linalg.norm(nut - goal, axis=1).sum()), float(np.linalg.norm(fingers - nut, axis=1).sum()))
+
+    def keypoint_distance(self, physics) -> float:
+        """Mean distance (m) between the nut's keypoints and the goal's."""
+        return self.keypoint_distances(physics)[0] / len(self._keypoints)
+
+    def get_reward(self, physics):
+        cfg = self.config
+        nut_to_goal, fingers_to_nut = self.keypoint_distances(physics)
+        return -cfg.keypoint_reward_scale * (nut_to_goal + fingers_to_nut) - cfg.action_gradient_penalty_scale * self._action_delta
+
+    def is_success(self, physics) -> bool:
+        return float(np.linalg.norm(self.nut_pos(physics) - self.goal_pos(physics))) < self.config.success_distance
+
+    def failure(self, physics) -> str | None:
+        """Factory's failures, by name, or None: the nut slipped in the grasp, fell off the bolt or moved far."""
+        d, ids = physics.data, self._ids
+        nut, goal = self.nut_pos(physics), self.goal_pos(physics)
+        nut_up = d.xmat[ids["held_body"]].reshape(3, 3)[:, 2]
+        hand_up = -d.xmat[ids["hand_body"]].reshape(3, 3)[:, 2]
+        pads_mid = d.site_xpos[ids["tcp"]] + 0.5 * PAD_LENGTH * hand_up
+        if np.linalg.norm(pads_mid - (nut + 0.5 * props.NUT_HEIGHT * nut_up)) > 0.5 * (PAD_LENGTH + props.NUT_HEIGHT):
+            return "slipped in the grasp"
+        bolt_top = self.fixed_pos(physics)[2] + props.BOLT_HEAD_HEIGHT + props.SHANK_LENGTH
+        if math.hypot(*(nut[:2] - goal[:2])) > props.BOLT_THREAD_RADIUS + props.THREAD_TUBE and nut[2] < bolt_top:
+            return "fell off the bolt"
+        if np.linalg.norm(nut - goal) > self.config.far_distance:
+            return "moved far away"
+        return None
+
+    def should_terminate_episode(self, physics):
+        return super().should_terminate_episode(physics) or self.is_success(physics) or self.failure(physics) is not None
+
+    def get_discount(self, physics):
+        # Success and failure end the episode (Factory resets on both): terminations. The time limit truncates.
+        return 0.0 if self.is_success(physics) or self.failure(physics) is not None else 1.0
+
+    def outcome(self, physics) -> dict:
+        """How far the nut is from its goal (thread turns to go, offset from the bolt's axis, tilt) and why it
+        stopped there."""
+        nut, goal = self.nut_pos(physics), self.goal_pos(physics)
+        tilt = float(np.arccos(min(abs(physics.data.xmat[self._ids["held_body"]][8]), 1.0)))
+        failure = self.failure(physics)
+        label = "screwed down" if self.is_success(physics) else failure or "on the thread, not down yet"
+        return dict(outcome=label, turns_to_go=float((nut[2] - goal[2]) / props.PITCH),
+                    nut_offset_xy=math.hypot(*(nut[:2] - goal[:2])), nut_tilt=tilt)
+
+    def get_state(self, physics) -> dict:
+        return dict(super().get_state(physics), hold_target=self._hold_target.copy())
+
+    def set_state(self, physics, state: dict) -> None:
+        super().set_state(physics, state)
+        self._hold_target = state["hold_target"].copy()
+
+    # ---------------------------------------------------------------------------------- observations
+    # The insertion task's layout with the goal (the bolt's head top) in the socket's place.
+    def proprio(self, physics) -> np.ndarray:
+        ids, d = self._ids, physics.data
+        tcp, goal = d.site_xpos[ids["tcp"]], self.goal_pos(physics)
+        return np.concatenate([tcp, d.xquat[ids["hand_body"]], goal, [1.0, 0, 0, 0], d.qpos[ids["finger_qpos"]],
+                               goal - tcp]).astype(np.float32)
+
+    def peg_state(self, physics) -> np.ndarray:
+        ids, d = self._ids, physics.data
+        nut = self.nut_pos(physics)
+        return np.concatenate([nut, d.xquat[ids["held_body"]], self.goal_pos(physics) - nut]).astype(np.float32)
+
+    def critic_state(self, physics) -> np.ndarray:
+        ids, d = self._ids, physics.data
+        lin, ang = self._velocity(physics, mujoco.mjtObj.mjOBJ_SITE, ids["tcp"])
+        nut, goal = self.nut_pos(physics), self.goal_pos(physics)
+        return np.concatenate([
+            d.site_xpos[ids["tcp"]], d.xquat[ids["hand_body"]], nut, d.xquat[ids["held_body"]], goal, [1.0, 0, 0, 0],
+            d.qpos[ids["finger_qpos"]], lin, ang, self.contact_forces(physics), goal - nut,
+            [self.keypoint_distance(physics)]]).astype(np.float32)
+
+    def _observation_sources(self) -> dict:
+        return dict(proprio=self.proprio, peg_state=self.peg_state, critic_state=self.critic_state)
