@@ -1,7 +1,10 @@
 """Environment speed: control steps/s of one env (all observations on) with a cost breakdown, and of
 N envs vectorised over 1 and 2 worker processes.
 
-    python benchmarks/bench_env.py [--steps 1000] [--json docs/data/bench_env.json]
+    python benchmarks/bench_env.py [--steps 1000] [--tasks insertion screw] [--single] [--json docs/data/bench_env.json]
+
+With several tasks, each gets the one-env figure and its ratio to the first task's, measured in the same run;
+the vectorised rows are the first task's (`--single`: none).
 
 Breakdown per control step: physics (the substeps), rendering (64x64 wrist frame), tactile (both
 pads' fields), framework (composer, observables, reward, gymnasium adapter: the rest). The tactile
@@ -22,6 +25,7 @@ from vitac.utils.cli import int_at_least
 from vitac.utils.records import write_record
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
+TASKS = {"insertion": "vitac.tasks.insertion.config.InsertionConfig", "screw": "vitac.tasks.screw.config.ScrewConfig"}
 
 
 def _timed(owner, name: str, totals: dict, key: str):
@@ -38,8 +42,8 @@ def _timed(owner, name: str, totals: dict, key: str):
     setattr(owner, name, wrapper)
 
 
-def single_env(steps: int) -> dict:
-    env = TaskEnv({"observations": ALL}, seed=0)
+def single_env(steps: int, task: str = "insertion") -> dict:
+    env = TaskEnv({"_target_": TASKS[task], "observations": ALL}, seed=0)
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
     for a in actions[:50]:  # warm-up
@@ -51,10 +55,11 @@ def single_env(steps: int) -> dict:
     _timed(env.task, "step_physics", totals, "physics")
     _timed(env.task, "render_wrist", totals, "render")
     _timed(env.task, "raw_tactiles", totals, "tactile")
-    resets = 0
+    resets, contacts = 0, 0
     start = time.perf_counter()
     for a in actions:
         _, _, te, tr, _ = env.step(a)
+        contacts += env.physics.data.ncon
         if te or tr:
             env.reset()
             resets += 1
@@ -64,11 +69,11 @@ def single_env(steps: int) -> dict:
     return dict(steps_per_s=steps / total, step_ms=total / steps * 1e3, physics_ms=per["physics"] * 1e3,
                 render_ms=per["render"] * 1e3, tactile_ms=per["tactile"] * 1e3,
                 framework_ms=(total / steps - sum(per.values())) * 1e3, substeps=env.task.physics_steps_per_control_step,
-                tactile_pad_frames_per_s=2.0 / per["tactile"], resets_included=resets)
+                tactile_pad_frames_per_s=2.0 / per["tactile"], resets_included=resets, mean_contacts=contacts / steps)
 
 
-def vectorised(num_envs: int, workers: int, steps: int) -> float:
-    venv = TaskVectorEnv({"observations": ALL}, num_envs=num_envs, num_workers=workers, seed=0)
+def vectorised(num_envs: int, workers: int, steps: int, task: str = "insertion") -> float:
+    venv = TaskVectorEnv({"_target_": TASKS[task], "observations": ALL}, num_envs=num_envs, num_workers=workers, seed=0)
     venv.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, num_envs, 6))
     for a in actions[:20]:
@@ -84,20 +89,31 @@ def vectorised(num_envs: int, workers: int, steps: int) -> float:
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int_at_least(1), default=1000)
+    parser.add_argument("--tasks", nargs="+", choices=list(TASKS), default=["insertion"])
+    parser.add_argument("--single", action="store_true", help="only the one-env figures")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
-    single = single_env(args.steps)
-    print(f"one env, all observations: {single['steps_per_s']:.0f} control steps/s ({single['step_ms']:.3f} ms): "
-          f"physics {single['physics_ms']:.3f} ms ({single['substeps']} substeps), render {single['render_ms']:.3f} ms, "
-          f"tactile {single['tactile_ms']:.3f} ms ({single['tactile_pad_frames_per_s']:.0f} pad-frames/s), "
-          f"framework {single['framework_ms']:.3f} ms")
+    singles = {}
+    for task in args.tasks:
+        single = singles[task] = single_env(args.steps, task)
+        single["vs_first_task"] = single["steps_per_s"] / singles[args.tasks[0]]["steps_per_s"]
+        print(f"{task}, one env, all observations: {single['steps_per_s']:.0f} control steps/s "
+              f"({single['step_ms']:.3f} ms, {single['vs_first_task']:.2f}x {args.tasks[0]}): physics "
+              f"{single['physics_ms']:.3f} ms ({single['substeps']} substeps, {single['mean_contacts']:.0f} contacts), "
+              f"render {single['render_ms']:.3f} ms, tactile {single['tactile_ms']:.3f} ms "
+              f"({single['tactile_pad_frames_per_s']:.0f} pad-frames/s), framework {single['framework_ms']:.3f} ms")
+    if args.single:
+        if args.json:
+            write_record(args.json, single=singles)
+        return
+    single = singles[args.tasks[0]]
     rows = []
     base = None
     for workers in (1, 2):
         for n in (1, 2, 4, 8):
             if n < workers:
                 continue
-            rate = vectorised(n, workers, max(args.steps // n, 50))
+            rate = vectorised(n, workers, max(args.steps // n, 50), args.tasks[0])
             base = base or rate
             rows.append(dict(num_envs=n, workers=workers, steps_per_s=rate))
     one_worker = {r["num_envs"]: r["steps_per_s"] for r in rows if r["workers"] == 1}
@@ -106,7 +122,7 @@ def main():
         r["speedup_vs_one_worker"] = r["steps_per_s"] / one_worker[r["num_envs"]]
         print(f"| {r['num_envs']} | {r['workers']} | {r['steps_per_s']:.0f} | {r['speedup_vs_one_worker']:.2f}x |")
     if args.json:
-        write_record(args.json, single=single, vectorised=rows)
+        write_record(args.json, single=single, vectorised=rows, **({"tasks": singles} if len(singles) > 1 else {}))
 
 
 if __name__ == "__main__":

@@ -88,27 +88,38 @@ def test_pulled_straight_up_the_nut_stays_on_the_thread():
     e.close()
 
 
-def test_random_actions_keep_the_threads_engaged_and_the_state_finite():
-    # 2,000 random-action steps over several episodes: no NaN, no divergence, no thread skipped or crossed
-    # (the height stays what the turning explains) and the nut stays on the bolt's axis within its play.
+def _random_action_episodes(episodes: int, seed: int = 0) -> int:
+    """Random-action episodes checked at every step: no NaN, no divergence, no thread skipped or crossed (the
+    height stays what the turning explains) and the nut on the bolt's axis within its play. Returns the steps."""
     e = screw_env()
-    rng = np.random.default_rng(0)
-    steps, episodes = 0, 0
-    while steps < 2000:
-        e.reset(seed=100 + episodes)
-        episodes += 1
+    rng = np.random.default_rng(seed)
+    steps = 0
+    for episode in range(episodes):
+        e.reset(seed=seed * 100_000 + episode)
         nut, done = NutTracker(e), False
         while not done:
             _, reward, terminated, truncated, info = e.step(rng.uniform(-1, 1, 6))
             steps += 1
             nut.update()
             done = terminated or truncated
-            assert np.isfinite(reward) and np.all(np.isfinite(e.physics.data.qpos)), steps
-            assert abs(nut.thread_phase) < 0.0005, (steps, nut.thread_phase)
+            assert np.isfinite(reward) and np.all(np.isfinite(e.physics.data.qpos)), (episode, steps)
+            assert abs(nut.thread_phase) < 0.0005, (episode, steps, nut.thread_phase)
             assert info["keypoint_distance"] < 0.1
-        assert info["outcome"] != "physics diverged"
-        assert info["nut_offset_xy"] < 0.001
+        assert info["outcome"] != "physics diverged", episode
+        assert info["nut_offset_xy"] < 0.001, episode
     e.close()
+    return steps
+
+
+def test_random_actions_keep_the_threads_engaged_and_the_state_finite():
+    assert _random_action_episodes(8) >= 2000
+
+
+@pytest.mark.slow
+def test_two_thousand_random_action_episodes():
+    # MuJoCo issues report segfaults and penetration with SDF nuts and bolts under some settings: this model
+    # is checked over 2,000 episodes (about 600,000 steps; ~25 min on one core).
+    assert _random_action_episodes(2000, seed=1) > 0
 
 
 def test_oracle_screws_the_nut_down(env):

@@ -36,6 +36,8 @@ class ScrewConfig(GraspTaskConfig):
     ORACLE: ClassVar[str] = "vitac.tasks.screw.oracle.OracleController"
 
     episode_steps: int = 300
+    # 1/240 s physics steps, twice Factory's rate (1/60 s, 2 substeps); stable with the thread's 0.01 s contacts.
+    physics_substeps: int = 4
     # A stiffer yaw drive than insertion's (Factory's z-rotation gain is 100x its others): the hand then turns
     # the nut at about 0.07 rad a step under the full action instead of 0.03.
     prop_gains: list = field(default_factory=lambda: [600.0, 600.0, 600.0, 150.0, 50.0, 50.0])
@@ -50,6 +52,9 @@ class ScrewConfig(GraspTaskConfig):
     bolt_friction: float = 0.3
     bolt_contact_timeconst: float = 0.01
     segments_per_turn: int = 24
+    # Turns of the nut's thread in contact with the bolt's: 3 of the 6.5 an M16 nut has (the first turns carry
+    # most of a real thread's load); contacts, the physics' cost, scale with it.
+    nut_thread_turns: float = 3.0
     success_pitches: float = 2.0  # success: the nut within this many thread pitches of resting on the bolt's head
     far_distance: float = 0.1  # Factory's far_error_thresh (m)
     keypoint_length: float = 0.112071  # Factory's keypoint axis: franka hand + finger length (m)
@@ -77,6 +82,9 @@ class ScrewConfig(GraspTaskConfig):
             value = getattr(self, key)
             if not isinstance(value, int) or isinstance(value, bool) or value < (8 if key == "segments_per_turn" else 1):
                 refuse(f"task.{key}", value, "an integer >= 8" if key == "segments_per_turn" else "a positive integer")
+        max_turns = props.NUT_HEIGHT / props.PITCH - 2 * props.THREAD_TUBE / props.PITCH
+        if isinstance(self.nut_thread_turns, bool) or not 1 <= self.nut_thread_turns <= max_turns:
+            refuse("task.nut_thread_turns", self.nut_thread_turns, f"a number of turns in [1, {max_turns:.2f}]")
         for key in ("success_pitches", "far_distance", "keypoint_length", "bolt_contact_timeconst"):
             value = getattr(self, key)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:

@@ -31,6 +31,7 @@ NUT_BORE_APOTHEM = 0.0084  # the nut's bore, a hexagon around its thread
 BOLT_HEAD_HEIGHT = 0.016
 BOLT_HEAD_APOTHEM = 0.012
 SHANK_LENGTH = 0.025
+THREAD_CONDIM = 3  # sliding friction only: no torsional friction at a thread's point contacts (a third cheaper)
 NUT_MASS_DENSITY = 7850.0  # steel (Factory)
 # Gap, along the line between their centres, between a bolt capsule and the nearest nut capsule when engaged.
 THREAD_CLEARANCE = math.hypot(NUT_THREAD_RADIUS - BOLT_THREAD_RADIUS, 0.5 * PITCH) - 2 * THREAD_TUBE
@@ -46,7 +47,8 @@ def helix_points(radius: float, z_start: float, z_end: float, segments_per_turn:
 
 
 def _add_thread(body, name: str, points: np.ndarray, **geom) -> list:
-    return [body.add("geom", name=f"{name}_{k}", type="capsule", size=(THREAD_TUBE,),
+    # Group 3, which cameras do not draw: hundreds of capsules would cost the 64x64 wrist frame ~25x its time.
+    return [body.add("geom", name=f"{name}_{k}", type="capsule", size=(THREAD_TUBE,), group=3,
                      fromto=np.concatenate([points[k], points[k + 1]]), **geom) for k in range(len(points) - 1)]
 
 
@@ -81,9 +83,11 @@ class Nut(composer.Entity):
     Args:
         friction: sliding friction of the nut's flats and thread (Factory: 0.3).
         segments_per_turn: capsules a turn of thread.
+        thread_turns: turns of the nut's thread (at most NUT_HEIGHT / PITCH = 6.5), centred in its height.
     """
 
-    def _build(self, friction: float, segments_per_turn: int = 24, rgba=(0.83, 0.68, 0.4, 1)):
+    def _build(self, friction: float, segments_per_turn: int = 24, thread_turns: float = 6.0,
+               rgba=(0.83, 0.68, 0.4, 1)):
         self._mjcf_root = mjcf.RootElement(model="nut")
         self.body = self._mjcf_root.worldbody.add("body", name="body")
         mass, axial, across = nut_mass_properties()
@@ -94,9 +98,10 @@ class Nut(composer.Entity):
                                    contype=collision.PEG | collision.PEG_GRASP, conaffinity=collision.PEG_AFFINITY,
                                    **common)
         self.geom = self.grasp_geom = self.flats[1]  # the flat facing +y
-        points = helix_points(NUT_THREAD_RADIUS, THREAD_TUBE, NUT_HEIGHT - THREAD_TUBE, segments_per_turn, 0.5 * PITCH)
+        margin = 0.5 * (NUT_HEIGHT - thread_turns * PITCH)  # the thread's turns centred in the nut's height
+        points = helix_points(NUT_THREAD_RADIUS, margin, NUT_HEIGHT - margin, segments_per_turn, 0.5 * PITCH)
         self.thread = _add_thread(self.body, "thread", points, contype=collision.PEG, conaffinity=collision.WORLD,
-                                  **common)
+                                  **dict(common, condim=THREAD_CONDIM))
 
     def contact_shape(self) -> ContactShape:
         """The nut as the pads feel it: a hexagonal prism with flats facing +-y."""
@@ -126,7 +131,10 @@ class Bolt(composer.Entity):
         self.core = self.body.add("geom", name="core", type="cylinder", size=(BOLT_CORE_RADIUS, 0.5 * SHANK_LENGTH),
                                   pos=(0, 0, BOLT_HEAD_HEIGHT + 0.5 * SHANK_LENGTH), **common)
         points = helix_points(BOLT_THREAD_RADIUS, BOLT_HEAD_HEIGHT, top - THREAD_TUBE, segments_per_turn, 0.0)
-        self.thread = _add_thread(self.body, "thread", points, **common)
+        self.thread = _add_thread(self.body, "thread", points, **dict(common, condim=THREAD_CONDIM))
+        # What cameras see of the threaded shank: a cylinder at the thread's mean radius, which touches nothing.
+        self.body.add("geom", name="shank_visual", type="cylinder", size=(BOLT_THREAD_RADIUS, 0.5 * SHANK_LENGTH),
+                      pos=(0, 0, BOLT_HEAD_HEIGHT + 0.5 * SHANK_LENGTH), contype=0, conaffinity=0, density=0, rgba=rgba)
         self.top_site = self.body.add("site", name="top", pos=(0, 0, top), size=(0.001,), rgba=(0, 1, 0, 0.5))
 
     @property

@@ -40,7 +40,8 @@ class ScrewTask(GraspedPartTask):
 
     def _build_parts(self):
         config = self.config
-        self.nut = props.Nut(friction=config.nut_friction, segments_per_turn=config.segments_per_turn)
+        self.nut = props.Nut(friction=config.nut_friction, segments_per_turn=config.segments_per_turn,
+                             thread_turns=config.nut_thread_turns)
         self.bolt = props.Bolt(friction=config.bolt_friction, contact_timeconst=config.bolt_contact_timeconst,
                                segments_per_turn=config.segments_per_turn)
         self.held_shape = self.nut.contact_shape()
