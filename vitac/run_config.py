@@ -7,7 +7,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.models.build import build_policy
-from vitac.tasks import make_task_config
+from vitac.tasks import DEFAULT_TASK_CONFIG, make_task_config
 from vitac.tasks.config import GraspTaskConfig
 from vitac.utils.checkpoint import load_checkpoint
 
@@ -66,6 +66,10 @@ def load_teacher(cfg: DictConfig, settings: dict) -> dict:
     if not cfg.get("teacher_ckpt"):
         raise ValueError("teacher_ckpt=None is not allowed with this algo: pass a trained policy, e.g. "
                          "teacher_ckpt=pretrained/privileged")
-    teacher, _, _ = load_policy(cfg.teacher_ckpt, key="teacher_ckpt")
+    teacher, _, teacher_settings = load_policy(cfg.teacher_ckpt, key="teacher_ckpt")
+    theirs, ours = (x.get("_target_") or DEFAULT_TASK_CONFIG for x in (teacher_settings, settings))
+    if theirs != ours:  # the observation names are shared between tasks: only the task tells them apart
+        raise ValueError(f"teacher_ckpt={cfg.teacher_ckpt!r} is not allowed: its policy was trained on {theirs}, this "
+                         f"run's task is {ours}; expected a teacher trained on the same task")
     settings["observations"] += [k for k in teacher.input_keys if k not in settings["observations"]]
     return dict(teacher=teacher)

@@ -207,3 +207,24 @@ def test_state_round_trip_is_exact(env):
 def test_bad_values_are_refused_by_name(key, value):
     with pytest.raises(ConfigError, match=f"task.{key}"):
         make_task_config({"_target_": SCREW, key: value})
+
+
+def test_the_papers_screw_policies_train_and_distil_and_a_teacher_of_another_task_is_refused(tmp_path):
+    import torch
+
+    from tests.conftest import compose_config
+    from vitac.train import train
+
+    teacher = train(compose_config(["preset=smoke", "experiment=screw/privileged_contact"], output_dir=tmp_path / "t"))
+    for row in ("tactile", "wrist"):
+        student = train(compose_config(["preset=smoke", f"experiment=screw/{row}", f"teacher_ckpt={teacher['checkpoint']}"],
+                                       output_dir=tmp_path / row))
+        assert math.isfinite(student["metrics"]["losses/action_mse"])
+    checkpoint = torch.load(teacher["checkpoint"], weights_only=False)
+    checkpoint["vitac_config"]["task"]["_target_"] = "vitac.tasks.insertion.config.InsertionConfig"
+    checkpoint["vitac_config"]["task"] = {k: v for k, v in checkpoint["vitac_config"]["task"].items()
+                                          if k in ("_target_", "episode_steps", "observations")}
+    torch.save(checkpoint, tmp_path / "insertion_teacher.ckpt")
+    with pytest.raises(ValueError, match="trained on vitac.tasks.insertion.config.InsertionConfig"):
+        train(compose_config(["preset=smoke", "experiment=screw/tactile", f"teacher_ckpt={tmp_path / 'insertion_teacher.ckpt'}"],
+                             output_dir=tmp_path / "refused"))
