@@ -74,7 +74,7 @@ def test_pulled_straight_up_the_nut_stays_on_the_thread():
     e.reset(seed=4)
     nut = NutTracker(e)
     nut_body = e.task._ids["held_body"]
-    # Pull by the hand (the z action's full step up), then with 20 N on the nut itself (about 70 times its weight).
+    # Pull by the hand (the z action's full step up), then with 20 N on the nut itself (about 65 times its weight).
     for step in range(120):
         if step == 60:
             e.physics.data.xfrc_applied[nut_body, 2] = 20.0
