@@ -30,7 +30,7 @@ SETTLE_SECONDS = 0.25  # TacSL closes the gripper for 30 sim steps of 1/120 s wi
 class GraspedPartTask(composer.Task):
     """Bring a part held between the two sensing pads to a fixed part.
 
-    Subclasses set `self.held` (an entity with `body`, `geom`, `grasp_geom`), `self.held_shape` (a
+    Subclasses set `self.held` (an entity with a `body`, every geom of which is the part), `self.held_shape` (a
     `vitac.sim.tactile.ContactShape`: the part as the pads feel it) and `self.fixed` (an entity with `body`) through `_attach_parts` in
     `_build_parts`, and implement `initialize_episode` (ending with `_settle_grasp`), `get_reward`,
     `keypoint_distance`, `is_success`, `outcome` and `_observation_sources`.
