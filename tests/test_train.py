@@ -260,20 +260,6 @@ def test_a_json_record_replaces_its_file_only_once_written_whole(tmp_path, monke
     assert [p.name for p in tmp_path.iterdir()] == ["last.eval.json"]  # and no temporary file left behind
 
 
-def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tmp_path):
-    run = tmp_path / "runs" / "0"
-    (run / "csv").mkdir(parents=True)
-    (run / "checkpoints").mkdir()
-    (run / "config.yaml").write_text("fusion: {_target_: vitac.models.fusion.CMTFusion}\nobs: {name: privileged}\n"
-                                     "reg: {lambda_sym: 0.0}\npreset: {name: smoke}\nseed: 0\n")
-    (run / "csv" / "metrics.csv").write_text("charts/env_steps,eval/success_rate\n1000,0.5\n")
-    (run / "checkpoints" / "last.eval.json").write_text('{"episodes": 100, "success_rate": 0.9')
-    result = subprocess.run([sys.executable, "-m", "vitac.report", str(tmp_path / "runs"), "--out", str(tmp_path / "out")],
-                            cwd=ROOT, capture_output=True, text=True)
-    assert result.returncode != 0 and "last.eval.json: cannot be read (JSONDecodeError" in result.stderr
-    assert not (tmp_path / "out" / "table1.md").exists()
-
-
 def test_bench_physics_meter_counts_every_substep_and_restores_the_methods_it_patches():
     from vitac.tasks.insertion.task import InsertionTask
 

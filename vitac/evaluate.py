@@ -77,9 +77,10 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
 def episode_statistics(summary: dict) -> dict:
     """The report's success statistics and how each episode ended, as the task's outcome() reports it (m, rad)."""
     return dict(**{k: v for k, v in summary.items() if k != "episodes_detail"},
+                episode_success=[int(e["success"]) for e in summary["episodes_detail"]],
                 final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]],
                 final_state=[{k: round(v, 6) if isinstance(v, float) else v for k, v in e.items()
-                              if k not in ("success", "steps_to_success", "keypoint_distance")}
+                              if k not in ("success", "steps_to_success", "keypoint_distance", "episode")}
                              for e in summary["episodes_detail"]])
 
 

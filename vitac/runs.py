@@ -5,6 +5,7 @@
     python -m vitac.runs summary <run>/csv/metrics.csv            # env steps/s, learning rate, KL, success
     python -m vitac.runs outcomes <run>/checkpoints/last.eval.json [--paired | --pooled]
     python -m vitac.runs log-std <run>/checkpoints/last.ckpt      # is the action noise stuck at its bound?
+    python -m vitac.runs status outputs/table1 [--seeds 0 1 2]    # a sweep's cells: done, partial, missing
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import sys
 from importlib import import_module
 
 COMMANDS = {"plot": "vitac.analysis.curves", "compare": "vitac.analysis.compare", "summary": "vitac.analysis.summary",
-            "outcomes": "vitac.analysis.outcomes", "log-std": "vitac.analysis.log_std"}
+            "outcomes": "vitac.analysis.outcomes", "log-std": "vitac.analysis.log_std", "status": "vitac.analysis.status"}
 
 
 def main(argv=None) -> None:

@@ -16,6 +16,7 @@ from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
 from vitac.run_config import build_policy_from_config, load_teacher, task_settings
+from vitac.run_dirs import auto_resume, keep_metrics
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.instantiate import instantiate
@@ -35,15 +36,24 @@ def train(cfg: DictConfig) -> dict:
     rollout_threads, update_threads = resolve_trainer_threads(cfg.trainer.rollout_threads, cfg.trainer.update_threads,
                                                               cfg.trainer.deterministic)
     out = Path(cfg.output_dir) if cfg.get("output_dir") else Path(HydraConfig.get().runtime.output_dir)
+    resume = cfg.resume
+    if resume == "auto":  # a sweep re-run: skip a finished cell, continue an interrupted one in its directory
+        resume, finished = auto_resume(out, cfg.trainer.iterations)
+        if finished:
+            print(f"vitac: {out} has finished its {cfg.trainer.iterations} iterations (resume=auto): nothing to train")
+            return dict(metrics={}, checkpoint=str(out / "checkpoints" / "last.ckpt"), skipped=True,
+                        metrics_csv=str(out / "csv" / "metrics.csv"), wandb=None, preset=cfg.preset.name)
     out.mkdir(parents=True, exist_ok=True)
     if cfg.seed is not None:  # before any weights are initialised
         L.seed_everything(cfg.seed, workers=True)
     policy = build_policy_from_config(cfg, task_config)
     log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
              sum(p.numel() for p in policy.parameters()))
-    ckpt_path = check_resume(cfg.resume, policy, envs_cfg["num_envs"], resolved) if cfg.resume else None
+    ckpt_path = check_resume(resume, policy, envs_cfg["num_envs"], resolved) if resume else None
     teacher = load_teacher(cfg, settings)  # {} unless the algorithm distills
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
+    if ckpt_path is not None and Path(resume).resolve() == out.resolve():
+        keep_metrics(out)  # resumed in place: Lightning's CSV logger would delete the earlier attempt's metrics
     video_settings = dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS)))
     make_envs, num_envs = instantiate(OmegaConf.create(envs_cfg)), envs_cfg["num_envs"]
     evaluation = instantiate(cfg.eval, make_envs=lambda: make_envs(settings, num_envs=min(num_envs, cfg.eval.episodes),

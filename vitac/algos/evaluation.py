@@ -38,11 +38,13 @@ def run_episodes(policy, envs, episodes: int, seed: int, deterministic: bool = T
                 env_info = info["env_infos"][i]
                 # The episode's end as the task reports it: success, steps to success, goal distance, outcome.
                 results.append(dict(env_info, success=bool(env_info["success"]),
-                                    steps_to_success=int(env_info["steps_to_success"])))
+                                    steps_to_success=int(env_info["steps_to_success"]), episode=r * n + int(i)))
             done |= terminated | truncated
             bar.update(min(len(results), episodes) - bar.n)
     bar.close()
-    return summarize(results[:episodes])
+    # In episode order (env i of round r runs episode r n + i, seeded seed + r n + i), whatever order they ended in:
+    # two evaluations with the same seed and episodes are paired episode by episode.
+    return summarize(sorted((e for e in results if e["episode"] < episodes), key=lambda e: e["episode"]))
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:

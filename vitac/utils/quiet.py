@@ -21,6 +21,8 @@ def quiet_third_party() -> None:
     warnings.filterwarnings("ignore", category=DeprecationWarning, module=r"(wandb|lightning|torch)\b")
     # A resume writes into a new run directory by design (resume=<old> hydra.run.dir=<new>): best.ckpt starts anew.
     warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
+    # `resume=auto` continues in the run's own directory, whose metrics it first keeps (vitac/run_dirs.py).
+    warnings.filterwarnings("ignore", message=r"(Experiment logs|Checkpoint) directory .* exists and is not empty")
 
 
 class OfflineWandbLogger(WandbLogger):

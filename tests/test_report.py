@@ -1,0 +1,124 @@
+"""Table I from a sweep: the report on a synthetic sweep whose table is known, the status command, and sweeps
+that skip finished cells and resume interrupted ones."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from tests.conftest import CONF, compose_config
+from vitac.analysis import table1
+from vitac.run_dirs import read_metrics
+from vitac.train import train
+
+ROOT = Path(CONF).parent
+PER_ITERATION = 2 * 16  # the synthetic runs' envs x horizon
+
+
+def fake_run(sweep: Path, row: str, seed: int, done: int, budget: int = 10, successes: list | None = None) -> Path:
+    """A run directory as training and vitac.evaluate leave it: config, metrics, a checkpoint holding `done`
+    iterations, and (given `successes`, one 0/1 per episode) an evaluation of its last checkpoint."""
+    run = sweep / f"{row.replace(' ', '_')},seed={seed}"
+    (run / "csv").mkdir(parents=True)
+    (run / "checkpoints").mkdir()
+    config = dict(row=row, seed=seed, trainer=dict(iterations=budget), envs=dict(num_envs=2), algo=dict(horizon=16))
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    rows = ["epoch,charts/env_steps,charts/SPS,eval/success_rate"]
+    rows += [f"{i},{(i + 1) * PER_ITERATION},{PER_ITERATION / 36.0},0.5" for i in range(done)]  # 36 s an iteration
+    (run / "csv" / "metrics.csv").write_text("\n".join(rows) + "\n")
+    torch.save(dict(vitac_config=config, state_dict={}, vitac=dict(env_steps=done * PER_ITERATION)),
+               run / "checkpoints" / "last.ckpt")
+    if successes is not None:
+        report = dict(episodes=len(successes), success_rate=sum(successes) / len(successes), seed=2_000_000,
+                      success_ci95=[0.0, 1.0], episode_success=successes, steps_to_success_mean=100.0 + seed)
+        (run / "checkpoints" / "last.eval.json").write_text(json.dumps(report))
+    return run
+
+
+def episodes(successes: int, total: int = 400) -> list[int]:
+    return [1] * successes + [0] * (total - successes)
+
+
+def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
+    sweep = tmp_path / "sweep"
+    for seed, k in enumerate((380, 360, 340)):  # 95, 90, 85%: 90.00 +- 5.00
+        fake_run(sweep, "Privileged", seed, 10, successes=episodes(k))
+    fake_run(sweep, "+ Contact forces", 0, 10, successes=episodes(388))  # 97%: +7.00 over Privileged
+    fake_run(sweep, "+ Contact forces", 1, 4)  # partial: not counted
+    fake_run(sweep, "Wrist", 0, 10)  # finished, never evaluated: not counted
+    fake_run(sweep, "Fusion - Naive", 0, 10, successes=episodes(360))
+    # CMT succeeds on 20 episodes naive failed and fails on none naive succeeded: a paired difference.
+    fake_run(sweep, "Fusion - CMT (lambda_sym=0)", 0, 10, successes=episodes(380))
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(out)], cwd=ROOT,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    md = (out / "table1.md").read_text()
+    assert "| Privileged | 90.00 ± 5.00 | 3 of 3 | " in md
+    assert "| + Contact forces | 97.00 ± 0.00 (+7.00) | 1 of 3 | " in md
+    assert "| Tactile | missing | 0 of 3 |" in md
+    assert "| Wrist | not evaluated (1 run started) | 0 of 3 |" in md
+    assert "| Wrist + Contact forces | missing |" in md  # its baseline is unevaluated: no parenthesis either
+    assert "| Fusion - CMT (lambda_sym=0) vs Fusion - Naive | 400 | 20 | 0 | " in md
+    tex = (out / "table1.tex").read_text()
+    assert r"Privileged & \checkmark &  &  &  &  & 90.00 $\pm$ 5.00 & 96.74 $\pm$ 1.63 \\" in tex
+    assert r"Tactile &  & \checkmark &  &  & \checkmark & missing & 91.41 $\pm$ 5.51 \\" in tex
+    data = json.loads((out / "table1.json").read_text())
+    rows = {r["row"]: r for r in data["rows"]}
+    assert len(rows) == 10 and rows["Tactile"]["mean"] is None and rows["Tactile"]["seeds"]["0"]["status"] == "missing"
+    privileged = rows["Privileged"]["seeds"]
+    assert [privileged[s]["success"] for s in "012"] == [0.95, 0.9, 0.85]
+    assert privileged["0"]["env_steps"] == 10 * PER_ITERATION and privileged["0"]["hours"] == 0.1  # 10 x 36 s
+    assert rows["+ Contact forces"]["seeds"]["1"]["status"] == "partial"
+    cmt = next(t for t in data["paired"] if t["first"] == "Fusion - CMT (lambda_sym=0)" and t["second"] == table1.NAIVE)
+    assert cmt["only_first"] == 20 and cmt["p"] < 1e-5
+    assert (out / "success_vs_steps.png").stat().st_size > 0 and (out / "learning_curves.png").stat().st_size > 0
+    status = subprocess.run([sys.executable, "-m", "vitac.runs", "status", str(sweep)], cwd=ROOT, capture_output=True,
+                            text=True)
+    assert "| Privileged | done: 10/10 it, 0.00 M steps | done" in status.stdout
+    assert "| + Contact forces | done: 10/10 it, 0.00 M steps | partial: 4/10 it, 0.00 M steps | missing |" in status.stdout
+    assert "5 done" not in status.stdout and "7 done, 1 partial, 22 missing of 30 cells" in status.stdout
+
+
+def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tmp_path):
+    run = fake_run(tmp_path / "runs", "Privileged", 0, 10)
+    (run / "checkpoints" / "last.eval.json").write_text('{"episodes": 100, "success_rate": 0.9')
+    result = subprocess.run([sys.executable, "-m", "vitac.report", str(tmp_path / "runs"), "--out", str(tmp_path / "out")],
+                            cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode != 0 and "last.eval.json: cannot be read as a vitac.evaluate report (JSONDecodeError" in result.stderr
+    assert not (tmp_path / "out" / "table1.md").exists()
+
+
+def test_a_finished_sweep_starts_no_training_when_run_again(tmp_path):
+    command = [sys.executable, "-m", "vitac.train", "-m", "seed=0", "+experiment/table1=privileged,tactile",
+               "preset=smoke", "logger=csv", "resume=auto", f"hydra.sweep.dir={tmp_path}"]
+    first = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, env={**__import__("os").environ})
+    assert first.returncode == 0, first.stderr[-2000:]
+    again = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    assert again.returncode == 0 and again.stdout.count("nothing to train") == 2, again.stdout[-2000:]
+    assert "PPO:" not in again.stderr
+
+
+def test_resume_auto_continues_an_interrupted_run_in_its_directory_keeping_its_metrics(tmp_path):
+    overrides = ["preset=smoke", "experiment=table1/privileged", "resume=auto"]
+    train(compose_config(overrides + ["trainer.iterations=1"], output_dir=tmp_path))  # the interrupted attempt
+    resumed = train(compose_config(overrides + ["trainer.iterations=3"], output_dir=tmp_path))
+    assert not resumed.get("skipped")
+    epochs = sorted({int(r["epoch"]) for r in read_metrics(tmp_path) if r.get("epoch")})
+    assert epochs == [0, 1, 2] and (tmp_path / "csv" / "metrics_part000.csv").is_file()
+    assert torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=False)["vitac"]["env_steps"] == 3 * 32
+    assert train(compose_config(overrides + ["trainer.iterations=3"], output_dir=tmp_path))["skipped"]
+
+
+@pytest.mark.parametrize("sweep", ["table1"])
+def test_the_table_sweep_runs_seed_0_of_every_row_first(sweep):
+    config = yaml.safe_load((ROOT / "conf" / "sweep" / f"{sweep}.yaml").read_text())
+    params = config["hydra"]["sweeper"]["params"]
+    assert list(params) == ["seed", "+experiment/table1"] and config["resume"] == "auto"  # the first varies slowest
+    assert len(list((ROOT / "conf" / "experiment" / "table1").glob("*.yaml"))) == len(table1.ROWS)

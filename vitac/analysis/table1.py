@@ -1,0 +1,156 @@
+"""Table I from a sweep: every row and seed as a cell, success on the same held-out episodes, paired tests.
+
+A cell counts when its run finished and its last checkpoint was evaluated (`checkpoints/last.eval.json`, at least
+`min_episodes` episodes); a row's value is the mean and standard deviation over its counted seeds, with the
+difference to its block's baseline in parentheses, as in the paper. Rows evaluated on the same episodes (same
+evaluation seed and count) are compared episode by episode: exact McNemar tests over every seed's pairs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from vitac.analysis.compare import wall_clock_hours
+from vitac.analysis.outcomes import mcnemar_exact
+from vitac.analysis.status import sweep_cells
+from vitac.run_dirs import read_metrics
+from vitac.utils.records import read_whole
+
+
+@dataclass(frozen=True)
+class Row:
+    label: str
+    paper: float  # the paper's success (%), mean and std over its seeds
+    paper_std: float
+    baseline: str | None  # the row the paper's parenthesis compares with
+    inputs: str  # the paper's check marks: Privileged, Reduced, Contact forces, Wrist, Tactile
+
+
+NAIVE = "Fusion - Naive"
+ROWS = [
+    Row("Privileged", 96.74, 1.63, None, "P"), Row("+ Contact forces", 98.96, 0.83, "Privileged", "PC"),
+    Row("Tactile", 91.41, 5.51, None, "RT"), Row("Wrist", 93.23, 2.00, None, "RW"),
+    Row("Wrist + Contact forces", 96.09, 1.41, "Wrist", "RCW"), Row(NAIVE, 92.97, 1.41, None, "RWT"),
+    Row("Fusion - Gated (lambda_sym=0)", 94.53, 2.73, NAIVE, "RWT"),
+    Row("Fusion - CMT (lambda_sym=0)", 96.22, 0.98, NAIVE, "RWT"),
+    Row("Fusion - Gated + Symmetry (lambda_sym=1)", 95.05, 1.76, NAIVE, "RWT"),
+    Row("Fusion - CMT + Symmetry (lambda_sym=1)", 96.59, 2.11, NAIVE, "RWT"),
+]
+BLOCK_ENDS = {"+ Contact forces", "Wrist + Contact forces", "Fusion - CMT (lambda_sym=0)"}  # the paper's rules
+# The paired comparisons behind the paper's claims, besides each row against its baseline.
+CLAIMS = [("Fusion - CMT (lambda_sym=0)", "Fusion - Gated (lambda_sym=0)"),
+          ("Fusion - CMT + Symmetry (lambda_sym=1)", "Fusion - CMT (lambda_sym=0)"),
+          ("Fusion - Gated + Symmetry (lambda_sym=1)", "Fusion - Gated (lambda_sym=0)"),
+          ("Fusion - CMT + Symmetry (lambda_sym=1)", "+ Contact forces"), ("Tactile", "Wrist")]
+
+
+def mean_std(values: list[float]) -> tuple[float | None, float | None]:
+    if not values:
+        return None, None
+    mean = sum(values) / len(values)
+    return mean, math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
+
+
+def evaluated(cell: dict, min_episodes: int) -> dict:
+    """The cell with its evaluation (when its run finished and was evaluated on enough episodes) and wall-clock."""
+    cell = dict(cell, success=None, episodes=0, ci95=None, hours=None, steps_to_success=None)
+    if cell["run"] is None:
+        return cell
+    run = Path(cell["run"])
+    hours = wall_clock_hours(read_metrics(run))
+    cell["hours"] = round(hours[-1][1], 3) if hours else None
+    report = run / "checkpoints" / "last.eval.json"
+    if cell["status"] == "done" and report.is_file():
+        data = read_whole(report, json.load, "a vitac.evaluate report")
+        if data["episodes"] >= min_episodes:
+            cell.update(success=data["success_rate"], episodes=data["episodes"], ci95=data["success_ci95"],
+                        eval_seed=data["seed"], episode_success=data.get("episode_success"),
+                        steps_to_success=data.get("steps_to_success_mean"))
+    return cell
+
+
+def build(dirs: list[Path], seeds: list[int], min_episodes: int = 400) -> dict:
+    """Table I as data: per row the paper's value, every seed's cell, ours (mean, std, seeds counted) and the
+    difference to the baseline; then the paired tests."""
+    cells = sweep_cells(dirs, [r.label for r in ROWS], seeds)
+    rows = []
+    for r in ROWS:
+        per_seed = {seed: evaluated(cells[(r.label, seed)], min_episodes) for seed in seeds}
+        mean, std = mean_std([100 * c["success"] for c in per_seed.values() if c["success"] is not None])
+        rows.append(dict(row=r.label, inputs=r.inputs, paper=r.paper, paper_std=r.paper_std, baseline=r.baseline,
+                         mean=mean, std=std, seeds_counted=sum(c["success"] is not None for c in per_seed.values()),
+                         seeds=per_seed))
+    by_label = {row["row"]: row for row in rows}
+    for row in rows:
+        base = by_label.get(row["baseline"]) if row["baseline"] else None
+        row["improvement"] = row["mean"] - base["mean"] if base and None not in (row["mean"], base["mean"]) else None
+    pairs = [(r.label, r.baseline) for r in ROWS if r.baseline] + CLAIMS
+    return dict(rows=rows, paired=[t for a, b in pairs if (t := paired_test(by_label[a], by_label[b]))],
+                min_episodes=min_episodes, seeds=seeds)
+
+
+def paired_test(first: dict, second: dict) -> dict | None:
+    """Exact McNemar over the episodes both rows were evaluated on, seed by seed; None without any."""
+    only_first = only_second = episodes = 0
+    for seed, a in first["seeds"].items():
+        b = second["seeds"][seed]
+        if not (a.get("episode_success") and b.get("episode_success")) or a["eval_seed"] != b["eval_seed"]:
+            continue
+        n = min(len(a["episode_success"]), len(b["episode_success"]))
+        x, y = a["episode_success"][:n], b["episode_success"][:n]
+        only_first += sum(p and not q for p, q in zip(x, y, strict=True))
+        only_second += sum(q and not p for p, q in zip(x, y, strict=True))
+        episodes += n
+    if not episodes:
+        return None
+    return dict(first=first["row"], second=second["row"], episodes=episodes, only_first=only_first,
+                only_second=only_second, p=mcnemar_exact(only_first, only_second))
+
+
+def _ours(row: dict, tex: bool = False) -> str:
+    if row["mean"] is None:
+        started = [c for c in row["seeds"].values() if c["status"] != "missing"]
+        return "missing" if not started else f"not evaluated ({len(started)} run{'s' * (len(started) > 1)} started)"
+    pm = r" $\pm$ " if tex else " ± "
+    text = f"{row['mean']:.2f}{pm}{row['std']:.2f}"
+    return text + (f" ({row['improvement']:+.2f})" if row["improvement"] is not None else "")
+
+
+def _budget(row: dict) -> tuple[str, str]:
+    counted = [c for c in row["seeds"].values() if c["success"] is not None]
+    if not counted:
+        return "", ""
+    steps = sum(c["env_steps"] for c in counted) / len(counted) / 1e6
+    hours = [c["hours"] for c in counted if c["hours"] is not None]
+    return f"{steps:.2f} M", f"{sum(hours) / len(hours):.1f}" if hours else ""
+
+
+def markdown(table: dict) -> str:
+    lines = ["| Method | ours: success (%) | seeds | 95% CI of each seed | env steps / seed | hours / seed | paper (%) |",
+             "|---|---|---|---|---|---|---|"]
+    for row in table["rows"]:
+        cis = ", ".join(f"{100 * c['ci95'][0]:.1f}-{100 * c['ci95'][1]:.1f}" for c in row["seeds"].values() if c["ci95"])
+        steps, hours = _budget(row)
+        lines.append(f"| {row['row']} | {_ours(row)} | {row['seeds_counted']} of {len(table['seeds'])} | {cis} | {steps} | "
+                     f"{hours} | {row['paper']:.2f} ± {row['paper_std']:.2f} |")
+    if table["paired"]:
+        lines += ["", "| paired (same episodes) | episodes | only the first succeeded | only the second | exact McNemar p |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {t['first']} vs {t['second']} | {t['episodes']} | {t['only_first']} | {t['only_second']} | "
+                  f"{t['p']:.3g} |" for t in table["paired"]]
+    return "\n".join(lines)
+
+
+def latex(table: dict) -> str:
+    mark = r"\checkmark"
+    lines = [r"\begin{tabular}{lccccccc}", r"\hline",
+             r"Method & Privileged & Reduced & Contact forces & Wrist & Tactile & Ours (\%) & Paper (\%) \\ \hline \hline"]
+    for row in table["rows"]:
+        marks = " & ".join(mark if k in row["inputs"] else "" for k in "PRCWT")
+        name = row["row"].replace("lambda_sym", r"$\lambda_{\textrm{sym}}$")
+        lines.append(f"{name} & {marks} & {_ours(row, tex=True)} & {row['paper']:.2f} $\\pm$ {row['paper_std']:.2f} \\\\"
+                     + (r" \hline \hline" if row["row"] in BLOCK_ENDS else ""))
+    return "\n".join(lines + [r"\hline", r"\end{tabular}"])

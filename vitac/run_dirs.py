@@ -1,0 +1,74 @@
+"""A run directory over its attempts: whether it finished, resuming it in place (`resume=auto`), its metrics.
+
+A sweep re-run with `resume=auto` finds each cell's directory where the first attempt left it (Hydra names it
+by its overrides): a finished cell is skipped, an interrupted one continues from its last checkpoint in the
+same directory. Lightning's CSV logger deletes the metrics file of the directory it writes to, so each
+earlier attempt's file is first kept as `csv/metrics_part<k>.csv`; `read_metrics` joins them.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import yaml
+
+from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.records import read_whole
+
+PART_PREFIX = "metrics_part"
+
+
+def last_checkpoint(run: Path) -> Path:
+    return Path(run) / "checkpoints" / "last.ckpt"
+
+
+def completed_iterations(run: Path) -> int:
+    """Iterations the run's last checkpoint holds (0 without one): its env steps over the steps an iteration takes."""
+    path = last_checkpoint(run)
+    if not path.is_file():
+        return 0
+    checkpoint = load_checkpoint(path, key="resume")
+    cfg = checkpoint["vitac_config"]
+    return int(checkpoint["vitac"]["env_steps"]) // (int(cfg["envs"]["num_envs"]) * int(cfg["algo"]["horizon"]))
+
+
+def auto_resume(out: Path, iterations: int) -> tuple[Path | None, bool]:
+    """For `resume=auto` in run directory `out`: (the directory to resume from, or None for a fresh start;
+    whether the run already finished its `iterations`)."""
+    if not last_checkpoint(out).is_file():
+        return None, False
+    return Path(out), completed_iterations(out) >= iterations
+
+
+def keep_metrics(out: Path) -> None:
+    """Keep the metrics of the attempt that wrote `out/csv/metrics.csv` before another attempt in `out` starts."""
+    current = Path(out) / "csv" / "metrics.csv"
+    if current.is_file():
+        parts = sorted(current.parent.glob(f"{PART_PREFIX}*.csv"))
+        current.rename(current.parent / f"{PART_PREFIX}{len(parts):03d}.csv")
+
+
+def read_metrics(run: Path, hint: str = "") -> list[dict]:
+    """Every logged row of a run over its attempts, in order: an iteration an interrupted attempt logged and the
+    next attempt repeated (the checkpoint was older than the log) counts once, from the later attempt."""
+    files = sorted((Path(run) / "csv").glob(f"{PART_PREFIX}*.csv")) + [Path(run) / "csv" / "metrics.csv"]
+    rows: list[dict] = []
+    for path in (f for f in files if f.is_file()):
+        new = read_whole(path, lambda f: list(csv.DictReader(f)), hint=hint)
+        first = min((int(r["epoch"]) for r in new if r.get("epoch")), default=None)
+        if first is not None:
+            rows = [r for r in rows if not r.get("epoch") or int(r["epoch"]) < first]
+        rows += new
+    return rows
+
+
+def run_status(run: Path) -> dict:
+    """A run directory's row, seed, status (done, partial, missing: no checkpoint yet), completed iterations of its
+    budget and env steps."""
+    cfg = read_whole(Path(run) / "config.yaml", yaml.safe_load)
+    iterations, done = int(cfg["trainer"]["iterations"]), completed_iterations(run)
+    steps = done * int(cfg["envs"]["num_envs"]) * int(cfg["algo"]["horizon"])
+    status = "done" if done >= iterations else "partial" if done else "missing"
+    return dict(run=str(run), row=cfg.get("row"), seed=cfg.get("seed"), status=status, iterations=done,
+                budget=iterations, env_steps=steps)
