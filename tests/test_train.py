@@ -608,9 +608,11 @@ def test_multirun_over_seeds_and_every_experiment(tmp_path):
            f"hydra.sweep.dir={tmp_path}/sweep"]
     subprocess.run(cmd, check=True, timeout=600)
     assert len(list((tmp_path / "sweep").rglob("last.ckpt"))) == 2
-    cmd = [sys.executable, "-m", "vitac.train", "-m", "preset=smoke", "experiment=glob(table1/*)",
+    # `experiment=glob(table1/*)` would launch nothing: Hydra's glob lists a group's own options, not its folders'.
+    cmd = [sys.executable, "-m", "vitac.train", "-m", "preset=smoke", "+experiment/table1=glob(*)",
            f"hydra.sweep.dir={tmp_path}/experiments"]
     subprocess.run(cmd, check=True, timeout=1200)
+    assert len(list((tmp_path / "experiments").rglob("last.ckpt"))) == 10
 
 
 def test_corrupt_critic_checkpoint_is_refused(tmp_path):
