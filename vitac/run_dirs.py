@@ -9,6 +9,8 @@ earlier attempt's file is first kept as `csv/metrics_part<k>.csv`; `read_metrics
 from __future__ import annotations
 
 import csv
+import shutil
+import tempfile
 from pathlib import Path
 
 import yaml
@@ -17,6 +19,25 @@ from vitac.utils.checkpoint import load_checkpoint
 from vitac.utils.records import read_whole
 
 PART_PREFIX = "metrics_part"
+MIN_FREE_BYTES = 200 * 2**20  # a run's checkpoints (up to ~14 MB each), metrics and videos, with room to spare
+
+
+def check_output_dir(out: Path, min_free: int = MIN_FREE_BYTES) -> None:
+    """Refuse, before anything is built, a run directory that cannot be created or written or whose disk is
+    nearly full: a run would otherwise fail at its first checkpoint, hours in."""
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-check-"):
+            pass
+    except OSError as err:
+        raise OSError(f"output directory {str(out)!r} is not writable ({err.strerror or err}): choose another "
+                      "with hydra.run.dir=<dir> (or hydra.sweep.dir=<dir> for a sweep)") from err
+    free = shutil.disk_usage(out).free
+    if free < min_free:
+        raise OSError(f"output directory {str(out)!r} has {free / 2**20:.0f} MiB free, less than the "
+                      f"{min_free / 2**20:.0f} MiB a run needs for its checkpoints and logs: free space or choose "
+                      "another with hydra.run.dir=<dir>")
 
 
 def last_checkpoint(run: Path) -> Path:

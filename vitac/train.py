@@ -11,12 +11,17 @@ from hydra.core.hydra_config import HydraConfig
 from lightning.pytorch.loggers import CSVLogger
 from omegaconf import DictConfig, OmegaConf
 
-from vitac.algos.callbacks import BestEvaluation, CheckpointOnTermination, IterationProgressBar
+from vitac.algos.callbacks import (
+    BestEvaluation,
+    CheckpointOnTermination,
+    IterationProgressBar,
+    NonFiniteGuard,
+)
 from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
 from vitac.run_config import build_policy_from_config, load_teacher, task_settings
-from vitac.run_dirs import auto_resume, keep_metrics
+from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.instantiate import instantiate
@@ -43,7 +48,7 @@ def train(cfg: DictConfig) -> dict:
             print(f"vitac: {out} has finished its {cfg.trainer.iterations} iterations (resume=auto): nothing to train")
             return dict(metrics={}, checkpoint=str(out / "checkpoints" / "last.ckpt"), skipped=True,
                         metrics_csv=str(out / "csv" / "metrics.csv"), wandb=None, preset=cfg.preset.name)
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out)
     if cfg.seed is not None:  # before any weights are initialised
         L.seed_everything(cfg.seed, workers=True)
     policy = build_policy_from_config(cfg, task_config)
@@ -63,7 +68,8 @@ def train(cfg: DictConfig) -> dict:
     callbacks = [instantiate(cfg.checkpoint, dirpath=out / "checkpoints"),
                  BestEvaluation(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
                                 save_top_k=1, auto_insert_metric_name=False),
-                 evaluation, CheckpointOnTermination(out / "checkpoints" / "last.ckpt"), IterationProgressBar()]
+                 evaluation, CheckpointOnTermination(out / "checkpoints" / "last.ckpt"), IterationProgressBar(),
+                 NonFiniteGuard(out / "checkpoints" / "last.ckpt", cfg.trainer.max_nonfinite_iterations)]
     loggers = [CSVLogger(out, name="csv", version="")]
     if cfg.logger.wandb:
         loggers.append(OfflineWandbLogger(save_dir=str(out), project=cfg.logger.project, name=cfg.logger.get("name"),

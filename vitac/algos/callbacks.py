@@ -93,6 +93,26 @@ class CheckpointOnTermination(L.Callback):
             print(f"\nvitac: stopped by SIGTERM after {module.env_steps} env steps; saved to {self.path}", flush=True)
 
 
+class NonFiniteGuard(L.Callback):
+    """Stop a run whose updates keep failing: an update skips a minibatch whose gradient is not finite (one bad
+    minibatch must not poison every weight); `limit` iterations in a row that skipped any saves the state as
+    `path` (last.ckpt: the weights those skips left untouched) and stops with an error naming the cause."""
+
+    def __init__(self, path, limit: int):
+        self.path, self.limit, self.streak = path, limit, 0
+
+    def on_train_epoch_end(self, trainer, module):
+        skipped = float(trainer.callback_metrics.get("losses/skipped_updates", 0.0))
+        self.streak = self.streak + 1 if skipped > 0 else 0
+        if self.streak >= self.limit:
+            trainer.save_checkpoint(self.path)
+            raise RuntimeError(
+                f"vitac: {self.streak} iterations in a row had non-finite gradients (trainer.max_nonfinite_iterations="
+                f"{self.limit}); stopped after {module.env_steps} env steps and saved {self.path}. A learning rate too "
+                "high for this policy, or non-finite observations (losses/skipped_updates, charts/diverged_episodes "
+                "in the metrics), are the usual causes")
+
+
 class IterationProgressBar(L.Callback):
     """One bar over all iterations showing env steps/s, success rate and ETA."""
 
@@ -110,4 +130,7 @@ class IterationProgressBar(L.Callback):
         self.bar.update(1)
 
     def on_train_end(self, trainer, module):
+        self.bar.close()
+
+    def on_exception(self, trainer, module, exception):
         self.bar.close()

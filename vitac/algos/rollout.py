@@ -21,6 +21,9 @@ from vitac.algos.buffer import RolloutBuffer
 from vitac.algos.curriculum import RandomizationCurriculum
 from vitac.models.policy import VisuoTactilePolicy
 
+# Episodes the environment ended because the simulation broke down (gym_env.TaskEnv): counted, never learned from.
+DIVERGED = ("physics diverged", "non-finite observation or reward")
+
 
 class _OneItem(Dataset):
     """Lightning needs a dataloader; each epoch is one iteration (a rollout and an update)."""
@@ -140,7 +143,7 @@ class RolloutAlgorithm(L.LightningModule):
         obs = self._to_torch(self._obs)
         if not buf.obs:
             buf.allocate(obs, self.envs.single_action_space.shape[0])
-        successes, steps_to_success = [], []
+        successes, steps_to_success, diverged = [], [], 0
         start_time = time.perf_counter()
         for t in range(self.horizon):
             if t % self.seq_len == 0:
@@ -158,6 +161,7 @@ class RolloutAlgorithm(L.LightningModule):
             for i in info["final_obs"]:
                 env_info = info["env_infos"][i]
                 successes.append(float(env_info["success"]))
+                diverged += env_info.get("outcome") in DIVERGED
                 if env_info["steps_to_success"] >= 0:
                     steps_to_success.append(env_info["steps_to_success"])
             self._obs, obs = next_obs, self._to_torch(next_obs)
@@ -174,7 +178,7 @@ class RolloutAlgorithm(L.LightningModule):
         return curriculum | {"charts/rollout_SPS": steps / rollout_time, "charts/episodes": len(successes),
                 "charts/success_rate": float(np.mean(successes)) if successes else float("nan"),
                 "charts/steps_to_success": float(np.mean(steps_to_success)) if steps_to_success else float("nan"),
-                "charts/reward_per_step": float(buf.rewards.mean())}
+                "charts/reward_per_step": float(buf.rewards.mean()), "charts/diverged_episodes": float(diverged)}
 
     def training_step(self, batch, batch_idx):
         iteration_start = time.perf_counter()

@@ -57,7 +57,8 @@ RUN_KEYS = ("seed", "resume", "row", "critic_ckpt", "freeze_critic", "teacher_ck
 # Groups not built through `_target_`, and their keys (task: its config class refuses unknown keys itself); the
 # other groups' keys are their target's parameters.
 PLAIN_GROUPS = {"task": None, "obs": ("name", "modalities"), "preset": ("name",), "logger": ("wandb", "project", "name"),
-                "trainer": ("accelerator", "rollout_threads", "update_threads", "deterministic", "iterations")}
+                "trainer": ("accelerator", "rollout_threads", "update_threads", "deterministic", "iterations",
+                            "max_nonfinite_iterations")}
 TARGET_GROUPS = ("algo", "envs", "curriculum", "eval", "checkpoint", "fusion", "reg", "head", "critic", "encoder.image",
                  "encoder.vector")
 
@@ -112,6 +113,7 @@ def check_run(cfg: dict) -> dict:
     else:
         check_ppo(algo, envs["num_envs"])
     check_int("trainer.iterations", cfg["trainer"]["iterations"], 1)
+    check_int("trainer.max_nonfinite_iterations", cfg["trainer"]["max_nonfinite_iterations"], 1)
     check_int("eval.every", cfg["eval"]["every"], 1)
     check_int("eval.episodes", cfg["eval"]["episodes"], 1)
     check_int("eval.video_every", cfg["eval"]["video_every"], 0)

@@ -17,6 +17,13 @@ def _space(spec) -> gym.spaces.Box:
     return gym.spaces.Box(-np.inf, np.inf, spec.shape, np.float32)
 
 
+RESET_ATTEMPTS = 3
+
+
+def _finite(obs: dict) -> bool:
+    return all(np.isfinite(v).all() for v in obs.values() if v.dtype != np.uint8)
+
+
 class TaskEnv(gym.Env):
     """One environment of a task with gymnasium's API.
 
@@ -60,12 +67,19 @@ class TaskEnv(gym.Env):
         super().reset(seed=seed)
         if seed is not None:
             self._env.random_state.seed(seed)
-        self._env.reset()
+        for _ in range(RESET_ATTEMPTS):  # a start whose observation is not finite is drawn again
+            self._env.reset()
+            # dm_control's reset ends with a forward pass with actuation disabled, so composer's first
+            # observation misses the grip force; recompute it with the actuators on.
+            self._env.physics.forward()
+            obs = self.observation()
+            if _finite(obs):
+                break
+        else:
+            bad = sorted(k for k, v in obs.items() if v.dtype != np.uint8 and not np.isfinite(v).all())
+            raise RuntimeError(f"{RESET_ATTEMPTS} episode starts in a row gave non-finite observations {bad}")
         self._needs_reset = False
-        # dm_control's reset ends with a forward pass with actuation disabled, so composer's first
-        # observation misses the grip force; recompute it with the actuators on.
-        self._env.physics.forward()
-        return self.observation(), self._info()
+        return obs, self._info()
 
     def step(self, action):
         if self._needs_reset:
@@ -73,15 +87,25 @@ class TaskEnv(gym.Env):
         if not np.all(np.isfinite(action)):
             raise ValueError(f"action={np.asarray(action).tolist()} is not allowed: expected 6 finite numbers in [-1, 1]")
         timestep = self._env.step(np.asarray(action, dtype=np.float64))
+        obs, reward = dict(timestep.observation), float(timestep.reward)
         terminated = timestep.step_type == StepType.LAST and timestep.discount == 0.0
         truncated = timestep.step_type == StepType.LAST and not terminated
+        # A NaN or Inf reaching the learner would poison its normalizers and weights: such a step ends the
+        # episode as a failure, its values zeroed (the observation is only the episode's last, never acted on).
+        finite = np.isfinite(reward) and _finite(obs)
+        if not finite:
+            obs = {k: v if v.dtype == np.uint8 else np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
+                   for k, v in obs.items()}
+            reward, terminated, truncated = 0.0, True, False
         self._needs_reset = terminated or truncated
         info = self._info()
         if self._needs_reset:  # how the episode ended, for evaluation reports
             info.update(self._env.task.outcome(self._env.physics))
             if self._env.diverged:  # composer ended a diverged simulation
                 info.update(outcome="physics diverged", success=False)
-        return dict(timestep.observation), float(timestep.reward), bool(terminated), bool(truncated), info
+            elif not finite:
+                info.update(outcome="non-finite observation or reward", success=False)
+        return obs, reward, bool(terminated), bool(truncated), info
 
     def render(self):
         return self._env.task.render_wrist(self._env.physics)

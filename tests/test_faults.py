@@ -1,0 +1,94 @@
+"""Fault injection: simulator breakdowns, non-finite updates and unusable output directories are contained,
+counted or refused with a message, and nothing already written is lost."""
+
+from __future__ import annotations
+
+import csv
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from tests.conftest import compose_config
+from vitac.envs.gym_env import TaskEnv
+from vitac.run_dirs import check_output_dir
+from vitac.train import train
+
+SMOKE = ["preset=smoke", "experiment=table1/privileged", "logger=csv"]
+
+
+def _metrics(run: dict) -> list[dict]:
+    with open(run["metrics_csv"]) as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_non_finite_observation_ends_its_episode_zeroed_and_named():
+    env = TaskEnv({"observations": ["proprio", "peg_state"]}, seed=0)
+    env.reset(seed=0)
+    env.step(np.zeros(6))
+    original = env.task._sources["peg_state"]
+    env.task._sources["peg_state"] = lambda physics: np.full(10, np.nan, np.float32)  # a broken sensor
+    obs, reward, terminated, truncated, info = env.step(np.zeros(6))
+    assert terminated and not truncated and reward == 0.0
+    assert info["outcome"] == "non-finite observation or reward" and not info["success"]
+    assert np.all(np.isfinite(obs["peg_state"])) and np.all(obs["peg_state"] == 0)
+    env.task._sources["peg_state"] = original
+    obs, _ = env.reset(seed=1)  # the next episode is whole
+    assert np.all(np.isfinite(obs["peg_state"]))
+    env.close()
+
+
+def test_training_counts_broken_episodes_and_continues(tmp_path, monkeypatch):
+    from vitac.tasks.insertion.task import InsertionTask
+
+    calls = {"n": 0}
+    original = InsertionTask.peg_state
+
+    def flaky_sensor(self, physics):  # every 7th reading of the privileged state is NaN
+        calls["n"] += 1
+        value = original(self, physics)
+        return np.full_like(value, np.nan) if calls["n"] % 7 == 0 else value
+
+    monkeypatch.setattr(InsertionTask, "peg_state", flaky_sensor)
+    run = train(compose_config(SMOKE, output_dir=tmp_path))
+    diverged = [float(r["charts/diverged_episodes"]) for r in _metrics(run) if r.get("charts/diverged_episodes")]
+    assert sum(diverged) >= 3 and np.isfinite(run["metrics"]["losses/loss"])
+    checkpoint = torch.load(run["checkpoint"], weights_only=False)
+    assert all(torch.isfinite(v).all() for v in checkpoint["state_dict"].values() if v.is_floating_point())
+
+
+def test_a_run_of_non_finite_updates_stops_with_a_named_cause_and_a_checkpoint(tmp_path, monkeypatch):
+    from vitac.algos.ppo import PPO
+
+    original = PPO.minibatch_losses
+
+    def poisoned(self, mb):
+        terms = original(self, mb)
+        return dict(terms, loss=terms["loss"] * float("nan"))
+
+    monkeypatch.setattr(PPO, "minibatch_losses", poisoned)
+    with pytest.raises(RuntimeError, match=r"2 iterations in a row had non-finite gradients"):
+        train(compose_config(SMOKE + ["trainer.iterations=5", "trainer.max_nonfinite_iterations=2"],
+                             output_dir=tmp_path))
+    checkpoint = torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=False)
+    assert checkpoint["vitac"]["env_steps"] == 2 * 32
+    assert all(torch.isfinite(v).all() for v in checkpoint["state_dict"].values() if v.is_floating_point())
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
+def test_a_read_only_output_directory_is_refused_before_anything_is_built(tmp_path):
+    out = tmp_path / "ro"
+    out.mkdir()
+    out.chmod(0o500)
+    with pytest.raises(OSError, match="is not writable"):
+        train(compose_config(SMOKE, output_dir=out / "run"))
+
+
+def test_an_unwritable_or_full_output_directory_is_refused_naming_it(tmp_path, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where the run directory should go")
+    with pytest.raises(OSError, match=r"output directory .*file/run.* is not writable"):
+        check_output_dir(blocker / "run")
+    with pytest.raises(OSError, match=r"MiB free, less than the 1048576 MiB a run needs"):
+        check_output_dir(tmp_path / "run", min_free=2**40)  # a disk with less than a tebibyte free
