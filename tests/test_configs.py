@@ -14,6 +14,7 @@ from omegaconf import OmegaConf
 
 from tests.conftest import CONF, compose_config
 from vitac.run_config import build_policy_from_config, task_settings
+from vitac.tasks import make_task_config
 from vitac.tasks.insertion.config import InsertionConfig
 from vitac.utils.checks import ConfigError
 
@@ -154,7 +155,7 @@ EXPERIMENTS = sorted(str(p.relative_to(Path(CONF) / "experiment").with_suffix(""
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_experiments_compose_and_build_their_env_and_policy(experiment):
     cfg = compose_config([f"experiment={experiment}"])
-    build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
+    build_policy_from_config(cfg, make_task_config(task_settings(cfg)))
 
 
 def test_every_table_one_row_has_an_experiment_and_recipes_name_their_row():

@@ -52,7 +52,7 @@ def test_training_counts_broken_episodes_and_continues(tmp_path, monkeypatch):
 
     monkeypatch.setattr(InsertionTask, "peg_state", flaky_sensor)
     run = train(compose_config(SMOKE, output_dir=tmp_path))
-    diverged = [float(r["charts/diverged_episodes"]) for r in _metrics(run) if r.get("charts/diverged_episodes")]
+    diverged = [float(r["charts/broken_episodes"]) for r in _metrics(run) if r.get("charts/broken_episodes")]
     assert sum(diverged) >= 3 and np.isfinite(run["metrics"]["losses/loss"])
     checkpoint = torch.load(run["checkpoint"], weights_only=False)
     assert all(torch.isfinite(v).all() for v in checkpoint["state_dict"].values() if v.is_floating_point())
@@ -92,3 +92,31 @@ def test_an_unwritable_or_full_output_directory_is_refused_naming_it(tmp_path, m
         check_output_dir(blocker / "run")
     with pytest.raises(OSError, match=r"MiB free, less than the 1048576 MiB a run needs"):
         check_output_dir(tmp_path / "run", min_free=2**40)  # a disk with less than a tebibyte free
+
+
+def test_a_killed_worker_is_restarted_its_episodes_truncated_and_counted():
+    import signal
+
+    from vitac.envs.vector_env import RESTARTED, TaskVectorEnv
+
+    venv = TaskVectorEnv({"observations": ["proprio", "peg_state"]}, num_envs=4, num_workers=2, seed=0, max_restarts=1)
+    try:
+        venv.reset(seed=0)
+        for _ in range(3):
+            venv.step(np.zeros((4, 6)))
+        victim = venv._procs[0].pid
+        os.kill(victim, signal.SIGKILL)
+        obs, rewards, terminated, truncated, info = venv.step(np.zeros((4, 6)))
+        outcomes = [e.get("outcome") for e in info["env_infos"]]
+        assert outcomes[:2] == [RESTARTED, RESTARTED] and list(truncated[:2]) == [True, True]
+        assert sorted(info["final_obs"]) == [0, 1] and not any(truncated[2:])  # the other worker's episodes go on
+        assert venv.restarts == 1 and venv._procs[0].pid != victim and np.all(np.isfinite(obs["proprio"]))
+        before = obs["proprio"][:2].copy()
+        for _ in range(3):  # the replacement steps like any worker
+            obs, *_ = venv.step(np.full((4, 6), 0.5))
+        assert np.abs(obs["proprio"][:2, :3] - before[:, :3]).min() > 1e-3  # its hands moved
+        os.kill(venv._procs[1].pid, signal.SIGKILL)  # past max_restarts: the run stops, naming the process
+        with pytest.raises(RuntimeError, match=r"died \(exit code -9\) during 'step' after 1 restarts"):
+            venv.step(np.zeros((4, 6)))
+    finally:
+        venv.close()

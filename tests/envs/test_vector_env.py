@@ -49,7 +49,9 @@ def test_a_failing_group_is_reported_and_leaves_the_vector_env_in_step():
 
 
 def test_a_dead_worker_is_named_with_its_exit_code_and_close_still_works():
-    venv = TaskVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True)
+    # With no restarts allowed (tests/test_faults.py restarts one).
+    venv = TaskVectorEnv({"observations": ["proprio"]}, num_envs=4, num_workers=2, seed=0, step_in_main=True,
+                         max_restarts=0)
     venv.reset(seed=0)
     worker = venv._procs[0]
     os.kill(worker.pid, signal.SIGKILL)  # e.g. the kernel's OOM killer

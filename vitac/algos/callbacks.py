@@ -109,7 +109,7 @@ class NonFiniteGuard(L.Callback):
             raise RuntimeError(
                 f"vitac: {self.streak} iterations in a row had non-finite gradients (trainer.max_nonfinite_iterations="
                 f"{self.limit}); stopped after {module.env_steps} env steps and saved {self.path}. A learning rate too "
-                "high for this policy, or non-finite observations (losses/skipped_updates, charts/diverged_episodes "
+                "high for this policy, or non-finite observations (losses/skipped_updates, charts/broken_episodes "
                 "in the metrics), are the usual causes")
 
 

@@ -19,10 +19,11 @@ from torch.utils.data import DataLoader, Dataset
 
 from vitac.algos.buffer import RolloutBuffer
 from vitac.algos.curriculum import RandomizationCurriculum
+from vitac.envs.vector_env import RESTARTED
 from vitac.models.policy import VisuoTactilePolicy
 
-# Episodes the environment ended because the simulation broke down (gym_env.TaskEnv): counted, never learned from.
-DIVERGED = ("physics diverged", "non-finite observation or reward")
+# Episodes a breakdown ended: the simulation (gym_env.TaskEnv) or a crashed worker process (vector_env), counted.
+BROKEN = ("physics diverged", "non-finite observation or reward", RESTARTED)
 
 
 class _OneItem(Dataset):
@@ -143,7 +144,7 @@ class RolloutAlgorithm(L.LightningModule):
         obs = self._to_torch(self._obs)
         if not buf.obs:
             buf.allocate(obs, self.envs.single_action_space.shape[0])
-        successes, steps_to_success, diverged = [], [], 0
+        successes, steps_to_success, broken = [], [], 0
         start_time = time.perf_counter()
         for t in range(self.horizon):
             if t % self.seq_len == 0:
@@ -161,7 +162,7 @@ class RolloutAlgorithm(L.LightningModule):
             for i in info["final_obs"]:
                 env_info = info["env_infos"][i]
                 successes.append(float(env_info["success"]))
-                diverged += env_info.get("outcome") in DIVERGED
+                broken += env_info.get("outcome") in BROKEN
                 if env_info["steps_to_success"] >= 0:
                     steps_to_success.append(env_info["steps_to_success"])
             self._obs, obs = next_obs, self._to_torch(next_obs)
@@ -178,7 +179,7 @@ class RolloutAlgorithm(L.LightningModule):
         return curriculum | {"charts/rollout_SPS": steps / rollout_time, "charts/episodes": len(successes),
                 "charts/success_rate": float(np.mean(successes)) if successes else float("nan"),
                 "charts/steps_to_success": float(np.mean(steps_to_success)) if steps_to_success else float("nan"),
-                "charts/reward_per_step": float(buf.rewards.mean()), "charts/diverged_episodes": float(diverged)}
+                "charts/reward_per_step": float(buf.rewards.mean()), "charts/broken_episodes": float(broken)}
 
     def training_step(self, batch, batch_idx):
         iteration_start = time.perf_counter()

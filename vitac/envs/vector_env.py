@@ -7,6 +7,7 @@ truncations), with `info["final_info"][i]` its success statistics.
 
 from __future__ import annotations
 
+import logging
 import multiprocessing as mp
 import signal
 import traceback
@@ -18,6 +19,10 @@ from gymnasium.vector import AutoresetMode
 
 from vitac.envs.gym_env import TaskEnv
 from vitac.utils.checks import check_groups
+
+log = logging.getLogger(__name__)
+RESTARTED = "environment worker restarted"  # the outcome of the episodes a crashed worker's restart ended
+RESTARTABLE = ("step", "reset")  # commands after which a dead worker is replaced; others need its state
 
 
 class _EnvGroup:
@@ -106,13 +111,19 @@ class TaskVectorEnv(gym.vector.VectorEnv):
         step_in_main: this process steps the first group itself while the workers step the others (so
             num_workers - 1 worker processes), instead of idling in between policy steps. On 2 cores, 3 busy
             processes lose time to scheduling: 16 privileged envs collect ~1.4x faster (docs/benchmarks.md).
+        max_restarts: worker processes that die (the OOM killer, a crash in native code) during a step or a
+            reset are replaced, up to this many times in all: the new worker's environments start new episodes,
+            and the episodes the crash cut off end as truncations with the outcome `RESTARTED`. Past the limit,
+            or during another command, a dead worker stops the run with its process id and exit code.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
 
-    def __init__(self, config: dict, num_envs: int, num_workers: int = 0, seed: int = 0, step_in_main: bool = False):
+    def __init__(self, config: dict, num_envs: int, num_workers: int = 0, seed: int = 0, step_in_main: bool = False,
+                 max_restarts: int = 5):
         check_groups(num_envs, num_workers)
         self.num_envs, self.num_workers = num_envs, num_workers
+        self.max_restarts, self.restarts = max_restarts, 0
         # The configured randomization scale (1: the paper's), which a curriculum overrides while it runs.
         self.configured_scale = float((config.get("randomization") or {}).get("scale", 1.0))
         probe = TaskEnv(config, seed=seed)
@@ -132,31 +143,69 @@ class TaskVectorEnv(gym.vector.VectorEnv):
         per = num_envs // max(num_workers, 1)
         if num_workers == 0 or step_in_main:
             self._local = _EnvGroup(config, seeds[:per], self.buffers, 0)
-        first_worker = 1 if step_in_main else 0
-        if num_workers > first_worker:
-            specs = {k: (shm.name, self.buffers[k].shape, self.buffers[k].dtype) for k, shm in self._shms.items()}
-            ctx = mp.get_context("forkserver")
-            for w in range(first_worker, num_workers):
-                parent, child = ctx.Pipe()
-                proc = ctx.Process(target=_worker, args=(child, config, seeds[w * per:(w + 1) * per], specs, w * per),
-                                   daemon=True)
-                proc.start()
-                self._pipes.append(parent)
-                self._procs.append(proc)
+        self._first_worker, self._per, self._config, self._seed = (1 if step_in_main else 0), per, config, seed
+        self._specs = {k: (shm.name, self.buffers[k].shape, self.buffers[k].dtype) for k, shm in self._shms.items()}
+        for w in range(self._first_worker, num_workers):
+            self._pipes.append(None)
+            self._procs.append(None)
+            self._start_worker(len(self._pipes) - 1, seeds[w * per:(w + 1) * per])
         self._closed = False
+
+    def _start_worker(self, w: int, seeds: list[int]) -> None:
+        """Start worker process w (of this process's list), stepping group first_worker + w."""
+        ctx = mp.get_context("forkserver")
+        parent, child = ctx.Pipe()
+        offset = (self._first_worker + w) * self._per
+        proc = ctx.Process(target=_worker, args=(child, self._config, seeds, self._specs, offset), daemon=True)
+        proc.start()
+        self._pipes[w], self._procs[w] = parent, proc
+
+    def _restart(self, w: int, command: str):
+        """Replace dead worker w, reset its environments and return its reply to `command` (step or reset)."""
+        proc = self._procs[w]
+        proc.join(timeout=1)
+        self.restarts += 1
+        log.warning("environment worker process %d died (exit code %s) during %r: restarted (%d of %d restarts); its "
+                    "%d environments start new episodes", proc.pid, proc.exitcode, command, self.restarts,
+                    self.max_restarts, self._per)
+        offset = (self._first_worker + w) * self._per
+        # New seeds: the replacement must not replay the episodes the crash may have come from.
+        base = self._seed + self.num_envs * self.restarts + offset
+        self._start_worker(w, [base + i for i in range(self._per)])
+        self._pipes[w].send(("reset", (None,)))
+        status, infos = self._receive(w, "reset")
+        if status == "error":
+            raise RuntimeError(f"restarted environment worker {w} failed in 'reset':\n{infos}")
+        if command == "reset":
+            return infos
+        final = [dict(info, success=False, steps_to_success=-1, outcome=RESTARTED,
+                      final_obs={k: self.buffers[k][offset + i].copy() for k in self.buffers})
+                 for i, info in enumerate(infos)]
+        return [0.0] * self._per, [False] * self._per, [True] * self._per, final
 
     def _call(self, command: str, payloads: list) -> list:
         """One payload per group: the workers start first, then this process runs its own group, if any."""
         remote = payloads[1:] if self._local is not None else payloads
+        dead = set()
         for w, payload in enumerate(remote):
             try:
                 self._pipes[w].send((command, payload))
-            except (BrokenPipeError, ConnectionResetError) as err:
-                raise self._worker_died(w, command) from err
+            except (BrokenPipeError, ConnectionResetError):
+                dead.add(w)
         try:
             local = [getattr(self._local, command)(*payloads[0])] if self._local is not None else []
         finally:  # the workers' replies are collected even when this process's group failed
-            replies = [self._receive(w, command) for w in range(len(self._pipes))]
+            replies = []
+            for w in range(len(self._pipes)):
+                try:
+                    replies.append(None if w in dead else self._receive(w, command))
+                except RuntimeError:  # it died while working on the command
+                    dead.add(w)
+                    replies.append(None)
+        if dead and (command not in RESTARTABLE or self.restarts + len(dead) > self.max_restarts):
+            raise self._worker_died(min(dead), command)
+        for w in sorted(dead):
+            replies[w] = ("ok", self._restart(w, command))
         first = len(local)
         errors = [(first + w, body) for w, (status, body) in enumerate(replies) if status == "error"]
         if errors:
@@ -173,8 +222,9 @@ class TaskVectorEnv(gym.vector.VectorEnv):
     def _worker_died(self, w: int, command: str) -> RuntimeError:
         proc = self._procs[w]
         proc.join(timeout=1)
+        restarts = f" after {self.restarts} restarts (max_restarts={self.max_restarts})" if command in RESTARTABLE else ""
         return RuntimeError(f"environment worker process {proc.pid} died (exit code {proc.exitcode}) during "
-                            f"{command!r}; a run continues from its last checkpoint with resume=<run dir>")
+                            f"{command!r}{restarts}; a run continues from its last checkpoint with resume=<run dir>")
 
     def _split(self, x) -> list:
         groups = max(self.num_workers, 1)
