@@ -120,3 +120,27 @@ def test_a_killed_worker_is_restarted_its_episodes_truncated_and_counted():
             venv.step(np.zeros((4, 6)))
     finally:
         venv.close()
+
+
+def test_a_write_failure_mid_run_stops_it_naming_the_file_and_keeps_the_last_checkpoint(tmp_path, monkeypatch):
+    import errno
+
+    import vitac.utils.checkpoint as checkpoint_module
+
+    real_save, calls = torch.save, {"n": 0}
+
+    def disk_fills_up(obj, path, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] > 2:  # the first iteration's checkpoints are written, then the disk is full
+            with open(path, "wb") as f:
+                f.write(b"\x00" * 100)  # half a file
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_save(obj, path, *args, **kwargs)
+
+    monkeypatch.setattr(checkpoint_module.torch, "save", disk_fills_up)
+    with pytest.raises(OSError, match=r"could not write checkpoint .*\.ckpt \(No space left on device\); the previous"):
+        train(compose_config(SMOKE + ["trainer.iterations=3", "checkpoint.every_n_epochs=1"], output_dir=tmp_path))
+    monkeypatch.setattr(checkpoint_module.torch, "save", real_save)
+    last = torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=False)  # whole, from iteration 1
+    assert last["vitac"]["env_steps"] == 32
+    assert not list((tmp_path / "checkpoints").glob(".*.tmp"))  # no half-written file left behind

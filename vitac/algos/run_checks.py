@@ -104,6 +104,7 @@ def check_run(cfg: dict) -> dict:
     envs = dict(cfg["envs"])
     envs["num_workers"] = resolve_groups(envs["num_envs"], envs["num_workers"], prefix="envs.")
     check_flag("envs.step_in_main", envs["step_in_main"])
+    check_int("envs.max_restarts", envs["max_restarts"], 0)
     algo = cfg["algo"]
     for name in ("horizon", "seq_len"):
         check_int(f"algo.{name}", algo[name], 1)

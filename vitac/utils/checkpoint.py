@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import pickle
+import tempfile
 from pathlib import Path
 
 import torch
@@ -62,3 +64,18 @@ class PortableCheckpointIO(TorchCheckpointIO):
 
     def load_checkpoint(self, path, map_location=None, weights_only=None) -> dict:
         return super().load_checkpoint(path, map_location="cpu", weights_only=weights_only)
+
+    def save_checkpoint(self, checkpoint, path, storage_options=None) -> None:
+        """Write through a temporary file renamed over `path` only once complete: a full disk or a kill mid-write
+        leaves the previous checkpoint whole, and the run stops naming the file and the cause."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.close(fd)
+        try:
+            torch.save(checkpoint, tmp)
+            os.replace(tmp, path)
+        except OSError as err:
+            Path(tmp).unlink(missing_ok=True)
+            raise OSError(f"could not write checkpoint {path} ({err.strerror or err}); the previous complete "
+                          f"checkpoint there, if any, is intact: free space, then resume=<run dir>") from err
