@@ -144,3 +144,26 @@ def test_a_write_failure_mid_run_stops_it_naming_the_file_and_keeps_the_last_che
     last = torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=False)  # whole, from iteration 1
     assert last["vitac"]["env_steps"] == 32
     assert not list((tmp_path / "checkpoints").glob(".*.tmp"))  # no half-written file left behind
+
+
+def test_ctrl_c_to_the_whole_job_saves_the_current_iteration_and_a_second_stops_at_once(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    from tests.conftest import CONF
+
+    args = ["preset=smoke", "experiment=table1/privileged", "envs.num_envs=4", "envs.num_workers=2",
+            "checkpoint.every_n_epochs=1000", "eval.every=1000", "logger=csv", "trainer.iterations=500",
+            f"hydra.run.dir={tmp_path / 'run'}"]
+    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args], cwd=os.path.dirname(CONF),
+                            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    progress = ""
+    while "| 3/500" not in progress and proc.poll() is None:
+        progress += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    os.killpg(proc.pid, signal.SIGINT)  # what a terminal sends: the worker process gets it too
+    stdout, stderr = proc.communicate(timeout=120)
+    assert "vitac: stopped by SIGINT (Ctrl-C)" in stdout, stdout + stderr[-2000:]
+    saved = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", weights_only=False)
+    assert 3 <= saved["vitac"]["env_steps"] // (16 * 4) < 500
+    assert "died" not in stdout + stderr  # the worker ignored it and was closed by the main process

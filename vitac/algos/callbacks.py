@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import threading
+
 import lightning as L
 from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.utilities.exceptions import SIGTERMException
@@ -82,15 +86,39 @@ class BestEvaluation(ModelCheckpoint):
 class CheckpointOnTermination(L.Callback):
     """On SIGTERM (a SLURM preemption or time limit, `kill`) Lightning finishes the current iteration and
     stops with SIGTERMException; this saves that state to `path` (last.ckpt), so `resume=<run dir>` loses
-    none of the run. Other exceptions can stop a run mid-rollout, whose state must not be saved."""
+    none of the run. A first Ctrl-C (SIGINT) is turned into that SIGTERM. Other exceptions can stop a run
+    mid-rollout, whose state must not be saved."""
 
     def __init__(self, path):
         self.path = path
+        self.signal_name = "SIGTERM"  # what stopped the run, for the message
+        self._previous_sigint = None
+
+    def on_train_start(self, trainer, module):
+        # Ctrl-C (SIGINT) takes SIGTERM's path: the iteration finishes and is saved. A second Ctrl-C stops at once.
+        if threading.current_thread() is threading.main_thread():
+            self._previous_sigint = signal.signal(signal.SIGINT, self._interrupt)
+
+    def _interrupt(self, signum, frame):
+        self.signal_name = "SIGINT (Ctrl-C)"
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        print("\nvitac: Ctrl-C: finishing this iteration, then saving it (Ctrl-C again stops at once)", flush=True)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    def _restore(self):
+        if self._previous_sigint is not None:
+            signal.signal(signal.SIGINT, self._previous_sigint)
+            self._previous_sigint = None
+
+    def on_train_end(self, trainer, module):
+        self._restore()
 
     def on_exception(self, trainer, module, exception):
+        self._restore()
         if isinstance(exception, SIGTERMException):  # raised between iterations only
             trainer.save_checkpoint(self.path)
-            print(f"\nvitac: stopped by SIGTERM after {module.env_steps} env steps; saved to {self.path}", flush=True)
+            print(f"\nvitac: stopped by {self.signal_name} after {module.env_steps} env steps; saved to {self.path}",
+                  flush=True)
 
 
 class NonFiniteGuard(L.Callback):

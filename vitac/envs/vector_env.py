@@ -79,6 +79,7 @@ def _worker(pipe, config, seeds, shm_specs, offset):
     # A SIGTERM to the whole job (SLURM, `kill -- -PGID`) is the main process's to handle: it finishes its
     # iteration and saves it, then closes the workers; one that died first would lose that iteration.
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the same holds
     shms = {k: shared_memory.SharedMemory(name=name) for k, (name, _, _) in shm_specs.items()}
     arrays = {k: np.ndarray(shape, dtype, buffer=shms[k].buf) for k, (_, shape, dtype) in shm_specs.items()}
     group = _EnvGroup(config, seeds, arrays, offset)
