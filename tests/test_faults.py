@@ -167,3 +167,30 @@ def test_ctrl_c_to_the_whole_job_saves_the_current_iteration_and_a_second_stops_
     saved = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", weights_only=False)
     assert 3 <= saved["vitac"]["env_steps"] // (16 * 4) < 500
     assert "died" not in stdout + stderr  # the worker ignored it and was closed by the main process
+
+
+def test_sigkill_at_a_random_point_loses_at_most_the_iteration_in_progress(tmp_path):
+    import random
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from tests.conftest import CONF
+
+    args = ["preset=smoke", "experiment=table1/privileged", "envs.num_envs=4", "envs.num_workers=2",
+            "checkpoint.every_n_epochs=1000", "eval.every=1000", "logger=csv", "trainer.iterations=500",
+            f"hydra.run.dir={tmp_path / 'run'}"]
+    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args], cwd=os.path.dirname(CONF),
+                            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    progress = ""
+    while "| 4/500" not in progress and proc.poll() is None:
+        progress += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    time.sleep(random.Random().uniform(0.0, 1.5))  # anywhere in the next iterations, mid-write included
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.communicate(timeout=60)
+    saved = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", weights_only=False)  # whole
+    assert saved["vitac"]["env_steps"] // (16 * 4) >= 4
+    resumed = train(compose_config(args[:-1] + ["resume=auto", f"trainer.iterations={saved['vitac']['env_steps'] // 64 + 1}"],
+                                   output_dir=tmp_path / "run"))
+    assert not resumed.get("skipped") and np.isfinite(resumed["metrics"]["losses/loss"])

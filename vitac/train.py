@@ -13,8 +13,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from vitac.algos.callbacks import (
     BestEvaluation,
-    CheckpointOnTermination,
     IterationProgressBar,
+    LastCheckpoint,
     NonFiniteGuard,
 )
 from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
@@ -68,7 +68,7 @@ def train(cfg: DictConfig) -> dict:
     callbacks = [instantiate(cfg.checkpoint, dirpath=out / "checkpoints"),
                  BestEvaluation(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
                                 save_top_k=1, auto_insert_metric_name=False),
-                 evaluation, CheckpointOnTermination(out / "checkpoints" / "last.ckpt"), IterationProgressBar(),
+                 evaluation, LastCheckpoint(out / "checkpoints" / "last.ckpt"), IterationProgressBar(),
                  NonFiniteGuard(out / "checkpoints" / "last.ckpt", cfg.trainer.max_nonfinite_iterations)]
     loggers = [CSVLogger(out, name="csv", version="")]
     if cfg.logger.wandb:

@@ -83,10 +83,11 @@ class BestEvaluation(ModelCheckpoint):
             super()._save_topk_checkpoint(trainer, monitor_candidates)
 
 
-class CheckpointOnTermination(L.Callback):
-    """On SIGTERM (a SLURM preemption or time limit, `kill`) Lightning finishes the current iteration and
-    stops with SIGTERMException; this saves that state to `path` (last.ckpt), so `resume=<run dir>` loses
-    none of the run. A first Ctrl-C (SIGINT) is turned into that SIGTERM. Other exceptions can stop a run
+class LastCheckpoint(L.Callback):
+    """`path` (last.ckpt) after every iteration, so that a SIGKILL or a crash loses at most the iteration in
+    progress (about 14 MB written through a temporary file, ~1% of a privileged iteration). On SIGTERM (a SLURM
+    preemption or time limit, `kill`) Lightning finishes the current iteration and stops with SIGTERMException;
+    that state is saved too. A first Ctrl-C (SIGINT) is turned into that SIGTERM. Other exceptions can stop a run
     mid-rollout, whose state must not be saved."""
 
     def __init__(self, path):
@@ -109,6 +110,9 @@ class CheckpointOnTermination(L.Callback):
         if self._previous_sigint is not None:
             signal.signal(signal.SIGINT, self._previous_sigint)
             self._previous_sigint = None
+
+    def on_train_epoch_end(self, trainer, module):
+        trainer.save_checkpoint(self.path)
 
     def on_train_end(self, trainer, module):
         self._restore()
