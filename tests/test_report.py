@@ -86,6 +86,19 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     assert "5 done" not in status.stdout and "7 done, 1 partial, 22 missing of 30 cells" in status.stdout
 
 
+def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
+    sweep = tmp_path / "screw"
+    for seed in range(3):
+        fake_run(sweep, "Screw: tactile", seed, 10, successes=episodes(400 - seed))
+    fake_run(sweep, "Screw: privileged", 0, 10, successes=episodes(300))
+    result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(tmp_path / "out")], cwd=ROOT,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    data = json.loads((tmp_path / "out" / "screw.json").read_text())["success_percent_per_seed"]
+    assert data == {"Privileged": [75.0], "Wrist-camera": [], "Tactile": [100.0, 99.75, 99.5]}
+    assert (tmp_path / "out" / "screw.png").stat().st_size > 0
+
+
 def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tmp_path):
     run = fake_run(tmp_path / "runs", "Privileged", 0, 10)
     (run / "checkpoints" / "last.eval.json").write_text('{"episodes": 100, "success_rate": 0.9')

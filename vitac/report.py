@@ -7,8 +7,9 @@ one per row and seed (vitac/analysis/table1.py): a cell counts once its run fini
 evaluated on at least --min-episodes held-out episodes (`checkpoints/last.eval.json`; `--evaluate` runs the
 missing evaluations first, all on the same episodes, so rows are compared episode by episode). Missing and
 unevaluated cells are shown as such, never as zero. Writes table1.md, table1.tex, table1.json and the figures:
-learning curves against env steps, and success against steps to succeed per trial for naive, gated and CMT
-fusion with density contours (the paper's Fig. "steps").
+learning curves against env steps, success against steps to succeed per trial for naive, gated and CMT fusion
+with density contours (the paper's Fig. "steps"), and, where the directories hold runs of experiment=screw/*,
+the paper's screw figure (screw.png, screw.json).
 """
 
 from __future__ import annotations
@@ -17,11 +18,14 @@ import argparse
 from pathlib import Path
 
 from vitac.analysis import table1
+from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import read_metrics
 from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
 from vitac.utils.records import write_json
 
 EVAL_SEED = 2_000_000  # vitac.evaluate's default: every cell on the same held-out episodes
+# The paper's screw figure (its appendix): the three policies' rows (conf/experiment/screw/*.yaml).
+SCREW_ROWS = {"Privileged": "Screw: privileged", "Wrist-camera": "Screw: wrist", "Tactile": "Screw: tactile"}
 FUSION_ROWS = {"Naive": table1.NAIVE, "Gated": "Fusion - Gated (lambda_sym=0)", "CMT": "Fusion - CMT (lambda_sym=0)"}
 
 
@@ -79,6 +83,33 @@ def figures(table: dict, out: Path) -> list[Path]:
     return paths
 
 
+def screw_figure(dirs: list[Path], seeds: list[int], min_episodes: int, out: Path) -> Path | None:
+    """The paper's screw figure from runs of experiment=screw/*: held-out success per policy, one dot per seed
+    and the mean as a bar; None when no screw run was evaluated."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = sweep_cells(dirs, list(SCREW_ROWS.values()), seeds)
+    results = {name: [100 * c["success"] for seed in seeds
+                      if (c := table1.evaluated(cells[(row, seed)], min_episodes))["success"] is not None]
+               for name, row in SCREW_ROWS.items()}
+    if not any(results.values()):
+        return None
+    fig, ax = plt.subplots(figsize=(4.5, 3.5))
+    for i, values in enumerate(results.values()):
+        if values:
+            ax.bar(i, sum(values) / len(values), color=f"C{i}", alpha=0.6)
+            ax.scatter([i] * len(values), values, color="k", s=12, zorder=3)
+        else:
+            ax.text(i, 2, "missing", ha="center", fontsize=8)
+    ax.set_xticks(range(len(results)), [f"{n}\n({len(v)} seeds)" for n, v in results.items()])
+    ax.set(ylabel="held-out success (%)", ylim=(0, 105), title="screw task (paper's appendix figure)")
+    write_json(out / "screw.json", dict(success_percent_per_seed=results, min_episodes=min_episodes))
+    return _save(fig, out / "screw.png")
+
+
 def _save(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
@@ -109,6 +140,8 @@ def main(argv=None):
     (args.out / "table1.tex").write_text(tex + "\n")
     write_json(args.out / "table1.json", table)
     paths = figures(table, args.out)
+    screw = screw_figure(args.dirs, args.seeds, args.min_episodes, args.out)
+    paths += [screw] if screw else []
     print(md)
     print(f"\nwrote {args.out / 'table1.md'}, {args.out / 'table1.tex'}, {args.out / 'table1.json'}, "
           + ", ".join(str(p) for p in paths))
