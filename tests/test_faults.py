@@ -146,21 +146,32 @@ def test_a_write_failure_mid_run_stops_it_naming_the_file_and_keeps_the_last_che
     assert not list((tmp_path / "checkpoints").glob(".*.tmp"))  # no half-written file left behind
 
 
-def test_ctrl_c_to_the_whole_job_saves_the_current_iteration_and_a_second_stops_at_once(tmp_path):
-    import signal
+# A 500-iteration smoke run with one worker process and no periodic checkpoints: last.ckpt can only come from the
+# per-iteration save or a signal. Iterations are 16 steps of 4 envs.
+JOB = ["preset=smoke", "experiment=table1/privileged", "envs.num_envs=4", "envs.num_workers=2",
+       "checkpoint.every_n_epochs=1000", "eval.every=1000", "logger=csv"]
+
+
+def _training_job_after(iterations: int, run_dir):
+    """A training job in its own process group, returned once its progress bar shows `iterations` done."""
     import subprocess
     import sys
 
     from tests.conftest import CONF
 
-    args = ["preset=smoke", "experiment=table1/privileged", "envs.num_envs=4", "envs.num_workers=2",
-            "checkpoint.every_n_epochs=1000", "eval.every=1000", "logger=csv", "trainer.iterations=500",
-            f"hydra.run.dir={tmp_path / 'run'}"]
-    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args], cwd=os.path.dirname(CONF),
-                            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *JOB, "trainer.iterations=500",
+                             f"hydra.run.dir={run_dir}"], cwd=os.path.dirname(CONF), stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, start_new_session=True)
     progress = ""
-    while "| 3/500" not in progress and proc.poll() is None:
+    while f"| {iterations}/500" not in progress and proc.poll() is None:
         progress += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    return proc
+
+
+def test_ctrl_c_to_the_whole_job_saves_the_current_iteration_and_a_second_stops_at_once(tmp_path):
+    import signal
+
+    proc = _training_job_after(3, tmp_path / "run")
     os.killpg(proc.pid, signal.SIGINT)  # what a terminal sends: the worker process gets it too
     stdout, stderr = proc.communicate(timeout=120)
     assert "vitac: stopped by SIGINT (Ctrl-C)" in stdout, stdout + stderr[-2000:]
@@ -172,25 +183,14 @@ def test_ctrl_c_to_the_whole_job_saves_the_current_iteration_and_a_second_stops_
 def test_sigkill_at_a_random_point_loses_at_most_the_iteration_in_progress(tmp_path):
     import random
     import signal
-    import subprocess
-    import sys
     import time
 
-    from tests.conftest import CONF
-
-    args = ["preset=smoke", "experiment=table1/privileged", "envs.num_envs=4", "envs.num_workers=2",
-            "checkpoint.every_n_epochs=1000", "eval.every=1000", "logger=csv", "trainer.iterations=500",
-            f"hydra.run.dir={tmp_path / 'run'}"]
-    proc = subprocess.Popen([sys.executable, "-m", "vitac.train", *args], cwd=os.path.dirname(CONF),
-                            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, start_new_session=True)
-    progress = ""
-    while "| 4/500" not in progress and proc.poll() is None:
-        progress += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+    proc = _training_job_after(4, tmp_path / "run")
     time.sleep(random.Random().uniform(0.0, 1.5))  # anywhere in the next iterations, mid-write included
     os.killpg(proc.pid, signal.SIGKILL)
     proc.communicate(timeout=60)
     saved = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", weights_only=False)  # whole
-    assert saved["vitac"]["env_steps"] // (16 * 4) >= 4
-    resumed = train(compose_config(args[:-1] + ["resume=auto", f"trainer.iterations={saved['vitac']['env_steps'] // 64 + 1}"],
-                                   output_dir=tmp_path / "run"))
+    done = saved["vitac"]["env_steps"] // (16 * 4)
+    assert done >= 4
+    resumed = train(compose_config(JOB + ["resume=auto", f"trainer.iterations={done + 1}"], output_dir=tmp_path / "run"))
     assert not resumed.get("skipped") and np.isfinite(resumed["metrics"]["losses/loss"])
