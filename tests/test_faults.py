@@ -194,3 +194,24 @@ def test_sigkill_at_a_random_point_loses_at_most_the_iteration_in_progress(tmp_p
     assert done >= 4
     resumed = train(compose_config(JOB + ["resume=auto", f"trainer.iterations={done + 1}"], output_dir=tmp_path / "run"))
     assert not resumed.get("skipped") and np.isfinite(resumed["metrics"]["losses/loss"])
+
+
+def test_checkpoints_load_weights_only_and_one_holding_code_is_refused(tmp_path):
+    import pickle
+
+    from vitac.utils.checkpoint import load_checkpoint
+
+    run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
+    checkpoint = load_checkpoint(run["checkpoint"])  # environment and RNG states included
+    assert checkpoint["vitac"]["env_steps"] == 64 and checkpoint["vitac"]["env_states"][0]["qacc_warmstart"].size > 0
+
+    class Payload:  # what a malicious file would carry: unpickling calls os.system
+        def __reduce__(self):
+            return (os.system, ("touch " + str(tmp_path / "pwned"),))
+
+    checkpoint["vitac"]["extra"] = Payload()
+    with open(tmp_path / "evil.ckpt", "wb") as f:
+        pickle.dump(checkpoint, f)
+    with pytest.raises(ValueError, match=r"holds objects other than tensors, numpy arrays and numbers"):
+        load_checkpoint(tmp_path / "evil.ckpt")
+    assert not (tmp_path / "pwned").exists()

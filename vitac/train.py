@@ -94,8 +94,9 @@ def train(cfg: DictConfig) -> dict:
             load_critic(module, cfg.critic_ckpt)
         if cfg.freeze_critic and policy.critic is not None:  # AACD with a fixed pre-trained critic
             policy.critic.requires_grad_(False)
-        # Our checkpoints carry environment and RNG states (numpy objects): they are our own files.
-        trainer.fit(module, ckpt_path=str(ckpt_path) if ckpt_path else None, weights_only=False)
+        # PortableCheckpointIO reads weights-only whatever this flag says (numpy states admitted, code never);
+        # True keeps Lightning from warning about unpickling.
+        trainer.fit(module, ckpt_path=str(ckpt_path) if ckpt_path else None, weights_only=True)
     finally:
         envs.close()
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}

@@ -1,4 +1,5 @@
-"""Reading vitac checkpoints: a missing, truncated or foreign file is refused with a message."""
+"""Reading and writing vitac checkpoints: read weights-only, written whole; a missing, truncated or foreign file
+is refused with a message."""
 
 from __future__ import annotations
 
@@ -19,10 +20,27 @@ def resolve_checkpoint(path: str | Path) -> Path:
     return path
 
 
+def _numpy_globals() -> list:
+    """What numpy arrays and scalars unpickle through: constructors of arrays, dtypes and scalars, no code."""
+    import importlib
+
+    import numpy as np
+    import numpy.dtypes
+
+    multiarray = importlib.import_module("numpy._core.multiarray" if hasattr(np, "_core") else "numpy.core.multiarray")
+    dtypes = [getattr(numpy.dtypes, n) for n in dir(numpy.dtypes) if n.endswith("DType")]
+    return [np.ndarray, np.dtype, multiarray._reconstruct, multiarray.scalar, *dtypes]
+
+
+def safe_load(path: str | Path) -> dict:
+    """torch's weights-only unpickler, which also admits numpy arrays and scalars (a training checkpoint's
+    environment and RNG states): tensors, containers and numbers only, never code."""
+    with torch.serialization.safe_globals(_numpy_globals()):
+        return torch.load(path, map_location="cpu", weights_only=True)
+
+
 def load_checkpoint(path: str | Path, key: str = "ckpt") -> dict:
-    """The checkpoint dict at `path`: a shipped policy (weights and config only) is read with torch's
-    weights-only unpickler; a training checkpoint (our own files: they also carry numpy RNG and environment
-    states for exact resume) needs the full one.
+    """The checkpoint dict at `path` (a training checkpoint or a shipped policy), read weights-only (`safe_load`).
 
     Args:
         path: checkpoint file, or a shipped policy's name (`pretrained/privileged`).
@@ -32,10 +50,10 @@ def load_checkpoint(path: str | Path, key: str = "ckpt") -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"{key}={str(path)!r}: no such checkpoint file")
     try:
-        try:
-            checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-        except pickle.UnpicklingError:  # a training checkpoint: environment and RNG states
-            checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+        checkpoint = safe_load(path)
+    except pickle.UnpicklingError as err:
+        raise ValueError(f"{key}={str(path)!r} holds objects other than tensors, numpy arrays and numbers, which vitac "
+                         f"does not unpickle (they could run code): {str(err).splitlines()[-1][:200]}") from err
     except Exception as err:  # a truncated or foreign file must not be half-read
         raise ValueError(f"{key}={str(path)!r} is not a readable vitac checkpoint: {err}") from err
     if not isinstance(checkpoint, dict) or "vitac_config" not in checkpoint or "state_dict" not in checkpoint:
@@ -59,11 +77,11 @@ def export_policy(path: str | Path, out: str | Path) -> dict:
 
 
 class PortableCheckpointIO(TorchCheckpointIO):
-    """Lightning's checkpoint reader with every tensor read onto the CPU, so that a run trained on a GPU
-    resumes on a machine without one; Lightning then moves weights and optimizer state to the run's device."""
+    """Lightning's checkpoint reader, weights-only, with every tensor read onto the CPU, so that a run trained on
+    a GPU resumes on a machine without one; Lightning then moves weights and optimizer state to the run's device."""
 
     def load_checkpoint(self, path, map_location=None, weights_only=None) -> dict:
-        return super().load_checkpoint(path, map_location="cpu", weights_only=weights_only)
+        return safe_load(path)  # weights-only whatever the caller asked: numpy states admitted, code never
 
     def save_checkpoint(self, checkpoint, path, storage_options=None) -> None:
         """Write through a temporary file renamed over `path` only once complete: a full disk or a kill mid-write
