@@ -215,3 +215,39 @@ def test_checkpoints_load_weights_only_and_one_holding_code_is_refused(tmp_path)
     with pytest.raises(ValueError, match=r"holds objects other than tensors, numpy arrays and numbers"):
         load_checkpoint(tmp_path / "evil.ckpt")
     assert not (tmp_path / "pwned").exists()
+
+
+
+# Every kind of bad value, in every group: each is refused by its key before a policy or an environment is built.
+BAD_VALUES = [
+    "envs.num_envs=0", "envs.num_envs=-4", "envs.num_workers=-1", "envs.max_restarts=-1", "envs.step_in_main=2",
+    "eval.every=0", "eval.episodes=0", "eval.video_every=-1", "checkpoint.every_n_epochs=0",
+    "checkpoint.save_top_k=abc", "trainer.iterations=0", "trainer.rollout_threads=0", "trainer.update_threads=-2",
+    "trainer.deterministic=maybe", "trainer.max_nonfinite_iterations=0", "trainer.accelerator=tpu",
+    "algo.horizon=0", "algo.seq_len=0", "algo.minibatch_size=0", "algo.mini_epochs=0", "algo.lr=0", "algo.lr=-1",
+    "algo.gamma=1.5", "algo.gamma=-0.1", "algo.gae_lambda=2", "algo.clip=0", "algo.clip=-0.2",
+    "algo.critic_coef=-1", "algo.grad_norm=0", "algo.entropy_coef=-1", "algo.bounds_loss_coef=-1",
+    "algo.normalize_input=yes", "algo.lr_schedule=cosine", "+curriculum.start=0.5", "reg.lambda_sym=-1",
+    "reg.mirror=diag", "fusion.num_heads=0", "fusion.num_heads=7", "fusion.dropout=-0.1", "fusion.dropout=1.0",
+    "head.units=[0]", "head.hidden=-1", "head.layers=0", "head.log_std_init=5", "encoder.image.channels=[32,64,0]",
+    "encoder.image.kernels=[8,4]", "encoder.image.bf16=maybe", "encoder.vector.hidden=[-5]", "task.control_hz=0",
+    "task.physics_substeps=0", "task.episode_steps=0", "task.pos_action_scale=-0.01", "task.prop_gains=[1,2]",
+    "task.taxel_rows=0", "task.camera_size=0", "task.camera_fovy=200", "task.tactile_kn=0", "task.peg_shape=hex",
+    "task.peg_size=10", "task.clearance=-0.001", "task.randomization.scale=2",
+    "task.randomization.ee_pos_low=[1,1,1]", "task.randomization.socket_obs_noise=-1",
+    "task.randomization.pad_stiffness=[0,1]", "task.randomization.peg_in_hand_depth=[0,0.1]",
+    "task.randomization.enabled=maybe", "task.tactile_residual=maybe", "task.use_shaped_keypoint_reward=maybe",
+    "task.num_keypoints=0", "task.success_threshold=0", "task.density=0", "+task.peg_colour=red", "seed=-1",
+    "seed=abc", "logger.wandb=maybe", "freeze_critic=maybe", "init_exclude=5", "obs.modalities=[wrist,nothing]",
+    "+foo=1", "+algo.lr_decay=0.9", "+fusion.depth=2", "+obs.extra=1", "init_ckpt=/no/such.ckpt",
+    "critic_ckpt=/no/such.ckpt",
+]
+
+
+@pytest.mark.parametrize("override", BAD_VALUES)
+def test_a_bad_value_is_refused_by_its_key_before_anything_is_built(tmp_path, monkeypatch, override):
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
+    key = override.split("=")[0].lstrip("+")
+    with pytest.raises((ValueError, FileNotFoundError)) as refused:
+        train(compose_config(SMOKE[:1] + [override, "logger=csv"], output_dir=tmp_path))
+    assert key in str(refused.value) and "Traceback" not in str(refused.value), str(refused.value)

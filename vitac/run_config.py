@@ -26,6 +26,16 @@ def task_settings(cfg: DictConfig) -> dict:
     return settings
 
 
+def check_modalities(cfg: DictConfig, settings: dict) -> None:
+    """Refuse `obs.modalities` naming an observation the task does not declare, by that key (before the task's
+    config would refuse the observation list built from it)."""
+    declared = make_task_config(dict(settings, observations=[])).observation_specs()
+    missing = [k for k in cfg.obs.modalities if k not in declared]
+    if missing:
+        raise ValueError(f"obs.modalities={list(cfg.obs.modalities)} is not allowed: the task declares no {missing}; "
+                         f"expected a subset of {[k for k, s in declared.items() if not s.critic_only]}")
+
+
 def build_policy_from_config(cfg: DictConfig, task_config: GraspTaskConfig):
     """The run's policy over the observations its task declares for `obs.modalities`."""
     specs = task_config.observation_specs()

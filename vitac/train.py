@@ -20,7 +20,7 @@ from vitac.algos.callbacks import (
 from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
-from vitac.run_config import build_policy_from_config, load_teacher, task_settings
+from vitac.run_config import build_policy_from_config, check_modalities, load_teacher, task_settings
 from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
@@ -36,6 +36,7 @@ def train(cfg: DictConfig) -> dict:
     resolved = OmegaConf.to_container(cfg, resolve=True)
     envs_cfg = check_run(resolved)  # everything that can be checked without simulating is checked first
     settings = task_settings(cfg)
+    check_modalities(cfg, settings)
     task_config = make_task_config(settings)
     accelerator = check_accelerator(cfg.trainer.accelerator)
     rollout_threads, update_threads = resolve_trainer_threads(cfg.trainer.rollout_threads, cfg.trainer.update_threads,

@@ -78,7 +78,10 @@ def check_keys(cfg: dict) -> None:
         node = cfg
         for part in group.split("."):
             node = node[part]
-        if node.get("_target_") is None:
+        if node.get("_target_") is None:  # a group switched off (curriculum=none) takes no keys
+            for key, value in node.items():
+                if key != "_target_":
+                    refuse(f"{group}.{key}", value, f"no keys while {group}._target_ is null (that group is off)")
             continue
         params = inspect.signature(import_object(node["_target_"])).parameters
         if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
@@ -99,8 +102,9 @@ def check_run(cfg: dict) -> dict:
         if cfg[key] and not resolve_checkpoint(cfg[key]).is_file():
             raise FileNotFoundError(f"{key}={cfg[key]!r}: no such checkpoint file")
     seed = cfg["seed"]
-    if seed is not None and not is_int(seed):
-        refuse("seed", seed, "an integer or null")
+    if seed is not None and (not is_int(seed) or seed < 0):
+        refuse("seed", seed, "an integer >= 0 or null")
+    check_flag("trainer.deterministic", cfg["trainer"]["deterministic"])
     envs = dict(cfg["envs"])
     envs["num_workers"] = resolve_groups(envs["num_envs"], envs["num_workers"], prefix="envs.")
     check_flag("envs.step_in_main", envs["step_in_main"])
@@ -119,6 +123,7 @@ def check_run(cfg: dict) -> dict:
     check_int("eval.episodes", cfg["eval"]["episodes"], 1)
     check_int("eval.video_every", cfg["eval"]["video_every"], 0)
     check_int("checkpoint.every_n_epochs", cfg["checkpoint"]["every_n_epochs"], 1)
+    check_int("checkpoint.save_top_k", cfg["checkpoint"]["save_top_k"], -1)
     curriculum = {k: v for k, v in cfg["curriculum"].items() if k != "_target_"}
     if cfg["curriculum"].get("_target_"):
         RandomizationCurriculum(**curriculum)  # its constructor refuses a bad value by key

@@ -52,6 +52,9 @@ class RecurrentActorHead(nn.Module):
             raise ValueError(f"head.log_std_bound={log_std_bound!r} is not allowed: expected 'clamp' or 'sigmoid'")
         if log_std_mode not in ("state", "param", "fixed"):
             raise ValueError(f"head.log_std_mode={log_std_mode!r} is not allowed: expected 'state', 'param' or 'fixed'")
+        if log_std_bound == "clamp" and not log_std_min <= log_std_init <= log_std_max:
+            raise ValueError(f"head.log_std_init={log_std_init!r} is not allowed: expected a number in [head.log_std_min, "
+                             f"head.log_std_max] = [{log_std_min}, {log_std_max}]")
         if log_std_bound == "sigmoid" and not log_std_min < log_std_init < log_std_max:
             raise ValueError(f"head.log_std_init={log_std_init!r} is not allowed with log_std_bound='sigmoid': "
                              f"expected a number strictly between {log_std_min} and {log_std_max}")

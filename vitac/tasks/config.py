@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from vitac.utils.checks import refuse
+from vitac.utils.checks import check_flag, refuse
 
 
 @dataclass(frozen=True)
@@ -142,6 +142,8 @@ class GraspTaskConfig:
             value = getattr(self, name)
             if len(value) != 6 or any(v < 0 for v in value):
                 refuse(f"{key}.{name}", value, "6 non-negative numbers (3 translational, 3 rotational)")
+        check_flag(f"{key}.tactile_residual", self.tactile_residual)
+        check_flag(f"{key}.randomization.enabled", self.randomization.enabled)
         if self.camera_fovy >= 180:
             refuse(f"{key}.camera_fovy", self.camera_fovy, "a field of view below 180 degrees")
         if 2 * self.taxel_margin >= min(0.024, 0.032):

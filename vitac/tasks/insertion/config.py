@@ -8,7 +8,7 @@ from typing import ClassVar
 from vitac.tasks.config import GraspRandomization, GraspTaskConfig, ObservationSpec
 from vitac.tasks.insertion import props
 from vitac.tasks.insertion.props import PEG_SHAPES, PegGeometry
-from vitac.utils.checks import refuse
+from vitac.utils.checks import check_flag, refuse
 
 
 @dataclass
@@ -98,6 +98,7 @@ class InsertionConfig(GraspTaskConfig):
 
     def validate(self) -> None:
         super().validate()
+        check_flag("task.use_shaped_keypoint_reward", self.use_shaped_keypoint_reward)
         if self.peg_shape not in PEG_SHAPES:
             refuse("task.peg_shape", self.peg_shape, f"one of {list(PEG_SHAPES)}")
         if self.peg_size not in props.ROUND_PEG_DIAMETER:

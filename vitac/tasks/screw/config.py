@@ -8,7 +8,7 @@ from typing import ClassVar
 
 from vitac.tasks.config import GraspRandomization, GraspTaskConfig, ObservationSpec
 from vitac.tasks.screw import props
-from vitac.utils.checks import refuse
+from vitac.utils.checks import check_flag, refuse
 
 
 @dataclass
@@ -75,6 +75,7 @@ class ScrewConfig(GraspTaskConfig):
 
     def validate(self) -> None:
         super().validate()
+        check_flag("task.unidirectional_rotation", self.unidirectional_rotation)
         axes = self.action_axes
         if len(axes) != 6 or any(a not in (0, 1) for a in axes) or not any(axes):
             refuse("task.action_axes", axes, "6 flags of 0 or 1 (x, y, z, roll, pitch, yaw), at least one 1")
