@@ -59,6 +59,7 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(out)], cwd=ROOT,
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
+    assert "| cmt | " in (out / "computation.md").read_text() and "6.52 / 21.45 / 153.37" in (out / "computation.md").read_text()
     md = (out / "table1.md").read_text()
     assert "| Privileged | 90.00 ± 5.00 | 3 of 3 | " in md
     assert "| + Contact forces | 97.00 ± 0.00 (+7.00) | 1 of 3 | " in md

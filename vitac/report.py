@@ -9,19 +9,21 @@ missing evaluations first, all on the same episodes, so rows are compared episod
 unevaluated cells are shown as such, never as zero. Writes table1.md, table1.tex, table1.json and the figures:
 learning curves against env steps, success against steps to succeed per trial for naive, gated and CMT fusion
 with density contours (the paper's Fig. "steps"), and, where the directories hold runs of experiment=screw/*,
-the paper's screw figure (screw.png, screw.json).
+the paper's screw figure (screw.png, screw.json); and the paper's computation table beside ours from the policy
+benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by default).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from vitac.analysis import table1
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import read_metrics
 from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
-from vitac.utils.records import write_json
+from vitac.utils.records import read_whole, write_json
 
 EVAL_SEED = 2_000_000  # vitac.evaluate's default: every cell on the same held-out episodes
 # The paper's screw figure (its appendix): the three policies' rows (conf/experiment/screw/*.yaml).
@@ -110,6 +112,18 @@ def screw_figure(dirs: list[Path], seeds: list[int], min_episodes: int, out: Pat
     return _save(fig, out / "screw.png")
 
 
+def computation_table(bench: Path) -> str:
+    """The paper's computation table beside ours, from a `benchmarks/bench_policy.py --json` record."""
+    data = read_whole(bench, json.load, "a benchmarks/bench_policy.py record")
+    lines = [f"Policy inference, batch 1 (`{data['meta'].get('command', 'benchmarks/bench_policy.py')}`, "
+             f"{data['meta'].get('threads', '?')} threads, {data['rows'][0]['device']}); the paper's on its GPU.", "",
+             "| Method | latency (ms) | memory (MB) | throughput (fps) | paper: latency / memory / fps |", "|---|---|---|---|---|"]
+    for r in data["rows"]:
+        lines.append(f"| {r['fusion']} | {r['latency_ms']:.2f} | {r['memory_mb']:.2f} | {r['throughput_fps']:.0f} | "
+                     f"{r['paper_latency_ms']} / {r['paper_memory_mb']} / {r['paper_fps']} |")
+    return "\n".join(lines)
+
+
 def _save(fig, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
@@ -127,6 +141,8 @@ def main(argv=None):
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--min-episodes", type=int_at_least(1), default=400)
     parser.add_argument("--evaluate", action="store_true", help="evaluate finished, unevaluated cells first")
+    parser.add_argument("--computation", type=Path, default=Path("docs/data/bench_policy.json"),
+                        help="the policy benchmark's record, for the paper's computation table")
     args = parser.parse_args(argv)
     for d in args.dirs:
         if not d.is_dir():
@@ -140,6 +156,8 @@ def main(argv=None):
     (args.out / "table1.tex").write_text(tex + "\n")
     write_json(args.out / "table1.json", table)
     paths = figures(table, args.out)
+    if args.computation.is_file():
+        (args.out / "computation.md").write_text(computation_table(args.computation) + "\n")
     screw = screw_figure(args.dirs, args.seeds, args.min_episodes, args.out)
     paths += [screw] if screw else []
     print(md)
