@@ -100,6 +100,22 @@ def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
     assert (tmp_path / "out" / "screw.png").stat().st_size > 0
 
 
+def test_report_draws_both_pads_force_fields_over_an_episode_for_each_policy(tmp_path):
+    from vitac.analysis import force_fields
+
+    run = train(compose_config(["preset=smoke", "obs=tactile", "fusion=naive", "reg=none", "logger=csv"],
+                               output_dir=tmp_path / "run"))
+    episode = force_fields.record_fields(run["checkpoint"], seed=2_000_000)
+    assert episode["left"].shape == episode["right"].shape == (12, 32, 32)  # the smoke preset's 12 steps
+    assert episode["left"].max() > 0  # the pads press on the peg
+    sweep = fake_run(tmp_path / "sweep", "Privileged", 0, 10).parent
+    result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(tmp_path / "out"), "--qual",
+                             f"Naive={run['checkpoint']}", f"Other={run['checkpoint']}"], cwd=ROOT,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "out" / "force_fields.png").stat().st_size > 0
+
+
 def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tmp_path):
     run = fake_run(tmp_path / "runs", "Privileged", 0, 10)
     (run / "checkpoints" / "last.eval.json").write_text('{"episodes": 100, "success_rate": 0.9')

@@ -10,7 +10,9 @@ unevaluated cells are shown as such, never as zero. Writes table1.md, table1.tex
 learning curves against env steps, success against steps to succeed per trial for naive, gated and CMT fusion
 with density contours (the paper's Fig. "steps"), and, where the directories hold runs of experiment=screw/*,
 the paper's screw figure (screw.png, screw.json); and the paper's computation table beside ours from the policy
-benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by default).
+benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by default); with
+`--qual "Naive=<ckpt>" "CMT + sym=<ckpt>"`, both pads' force fields over one held-out episode of each
+(force_fields.png, the paper's Fig. "qual").
 """
 
 from __future__ import annotations
@@ -141,6 +143,8 @@ def main(argv=None):
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--min-episodes", type=int_at_least(1), default=400)
     parser.add_argument("--evaluate", action="store_true", help="evaluate finished, unevaluated cells first")
+    parser.add_argument("--qual", nargs="*", default=[], metavar="NAME=CKPT",
+                        help="policies whose force fields over one held-out episode to draw (the paper's Fig. qual)")
     parser.add_argument("--computation", type=Path, default=Path("docs/data/bench_policy.json"),
                         help="the policy benchmark's record, for the paper's computation table")
     args = parser.parse_args(argv)
@@ -158,6 +162,12 @@ def main(argv=None):
     paths = figures(table, args.out)
     if args.computation.is_file():
         (args.out / "computation.md").write_text(computation_table(args.computation) + "\n")
+    if args.qual:
+        from vitac.analysis import force_fields
+
+        named = dict(item.split("=", 1) for item in args.qual)
+        episodes = {name: force_fields.record_fields(ckpt, EVAL_SEED) for name, ckpt in named.items()}
+        paths.append(force_fields.figure(episodes, args.out / "force_fields.png"))
     screw = screw_figure(args.dirs, args.seeds, args.min_episodes, args.out)
     paths += [screw] if screw else []
     print(md)
