@@ -108,6 +108,9 @@ def train(cfg: DictConfig) -> dict:
           f"success (train episodes) {metrics.get('charts/success_rate', float('nan')):.3f}, "
           f"eval {metrics.get('eval/success_rate', float('nan')):.3f}")
     print(f"  checkpoint: {result['checkpoint']}\n  metrics:    {result['metrics_csv']}")
+    videos = sorted((out / "videos").glob("*.mp4"))
+    if videos:  # the last evaluation's episode: outside view, wrist camera, both force fields
+        print(f"  video:      {videos[-1]}")
     if result["wandb"]:
         print(f"  wandb:      {result['wandb']}  (offline; `wandb sync {out}/wandb/offline-run-*` to upload)")
     return result
