@@ -112,7 +112,7 @@ class LastCheckpoint(L.Callback):
             self._previous_sigint = None
 
     def on_train_epoch_end(self, trainer, module):
-        trainer.save_checkpoint(self.path)
+        trainer.save_checkpoint(self.path, weights_only=False)  # the full state: exact resume
 
     def on_train_end(self, trainer, module):
         self._restore()
@@ -120,7 +120,7 @@ class LastCheckpoint(L.Callback):
     def on_exception(self, trainer, module, exception):
         self._restore()
         if isinstance(exception, SIGTERMException):  # raised between iterations only
-            trainer.save_checkpoint(self.path)
+            trainer.save_checkpoint(self.path, weights_only=False)  # the full state: exact resume
             print(f"\nvitac: stopped by {self.signal_name} after {module.env_steps} env steps; saved to {self.path}",
                   flush=True)
 
@@ -137,7 +137,7 @@ class NonFiniteGuard(L.Callback):
         skipped = float(trainer.callback_metrics.get("losses/skipped_updates", 0.0))
         self.streak = self.streak + 1 if skipped > 0 else 0
         if self.streak >= self.limit:
-            trainer.save_checkpoint(self.path)
+            trainer.save_checkpoint(self.path, weights_only=False)  # the full state: exact resume
             raise RuntimeError(
                 f"vitac: {self.streak} iterations in a row had non-finite gradients (trainer.max_nonfinite_iterations="
                 f"{self.limit}); stopped after {module.env_steps} env steps and saved {self.path}. A learning rate too "
