@@ -34,9 +34,11 @@ CONFIGS = {"privileged": PRIVILEGED,
            # iteration from twice the environments.
            "privileged_horizon512": PRIVILEGED + ["algo.horizon=512", "algo.minibatch_size=2048"],
            "privileged_32envs_horizon256": PRIVILEGED + ["envs.num_envs=32", "algo.horizon=256", "algo.minibatch_size=2048"],
-           "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"],
-           "wrist_tactile_cmt_sym_workers_only": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "envs.step_in_main=false"],
-           "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "encoder.image.bf16=false"],
+           "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo=ppo"],
+           "wrist_tactile_cmt_sym_workers_only": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo=ppo",
+                                                  "envs.step_in_main=false"],
+           "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo=ppo",
+                                          "encoder.image.bf16=false"],
            "wrist_tactile_cmt_sym_dagger": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER}
 
 

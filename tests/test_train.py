@@ -527,7 +527,7 @@ def test_every_algo_key_has_its_check():
     from vitac.algos import run_checks as c
 
     checked = set(c.POSITIVE_INTS + c.POSITIVE_NUMBERS + c.NON_NEGATIVE_NUMBERS + c.FRACTIONS + c.FLAGS + c.SCHEDULE)
-    assert set(compose_config([]).algo) - {"_target_", "_partial_"} == checked
+    assert set(compose_config(["algo=ppo"]).algo) - {"_target_", "_partial_"} == checked
 
 
 def test_evaluate_reports_success_with_interval(tmp_path, capfd):
