@@ -52,8 +52,10 @@ def load_checkpoint(path: str | Path, key: str = "ckpt") -> dict:
     try:
         checkpoint = safe_load(path)
     except pickle.UnpicklingError as err:
-        raise ValueError(f"{key}={str(path)!r} holds objects other than tensors, numpy arrays and numbers, which vitac "
-                         f"does not unpickle (they could run code): {str(err).splitlines()[-1][:200]}") from err
+        if "Unsupported global" in str(err) or "Can only build" in str(err):  # a whole file, with other objects
+            raise ValueError(f"{key}={str(path)!r} holds objects other than tensors, numpy arrays and numbers, which "
+                             "vitac does not unpickle (they could run code)") from err
+        raise ValueError(f"{key}={str(path)!r} is not a readable vitac checkpoint: {str(err).splitlines()[0][:200]}") from err
     except Exception as err:  # a truncated or foreign file must not be half-read
         raise ValueError(f"{key}={str(path)!r} is not a readable vitac checkpoint: {err}") from err
     if not isinstance(checkpoint, dict) or "vitac_config" not in checkpoint or "state_dict" not in checkpoint:
