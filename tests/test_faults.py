@@ -197,8 +197,6 @@ def test_sigkill_at_a_random_point_loses_at_most_the_iteration_in_progress(tmp_p
 
 
 def test_checkpoints_load_weights_only_and_one_holding_code_is_refused(tmp_path):
-    import pickle
-
     from vitac.utils.checkpoint import load_checkpoint
 
     run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
@@ -210,8 +208,7 @@ def test_checkpoints_load_weights_only_and_one_holding_code_is_refused(tmp_path)
             return (os.system, ("touch " + str(tmp_path / "pwned"),))
 
     checkpoint["vitac"]["extra"] = Payload()
-    with open(tmp_path / "evil.ckpt", "wb") as f:
-        pickle.dump(checkpoint, f)
+    torch.save(checkpoint, tmp_path / "evil.ckpt")  # a checkpoint file like any other, with the payload inside
     with pytest.raises(ValueError, match=r"holds objects other than tensors, numpy arrays and numbers"):
         load_checkpoint(tmp_path / "evil.ckpt")
     assert not (tmp_path / "pwned").exists()

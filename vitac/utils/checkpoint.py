@@ -52,7 +52,7 @@ def load_checkpoint(path: str | Path, key: str = "ckpt") -> dict:
     try:
         checkpoint = safe_load(path)
     except pickle.UnpicklingError as err:
-        if "Unsupported global" in str(err) or "Can only build" in str(err):  # a whole file, with other objects
+        if any(m in str(err).lower() for m in ("unsupported global", "can only build")):  # a file with other objects
             raise ValueError(f"{key}={str(path)!r} holds objects other than tensors, numpy arrays and numbers, which "
                              "vitac does not unpickle (they could run code)") from err
         raise ValueError(f"{key}={str(path)!r} is not a readable vitac checkpoint: {str(err).splitlines()[0][:200]}") from err
