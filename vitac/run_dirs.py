@@ -1,4 +1,5 @@
-"""A run directory over its attempts: whether it finished, resuming it in place (`resume=auto`), its metrics.
+"""A run directory over its attempts: whether it finished, resuming it in place (`resume=auto`), its metrics,
+and what a finished run prints about where it left them.
 
 A sweep re-run with `resume=auto` finds each cell's directory where the first attempt left it (Hydra names it
 by its overrides): a finished cell is skipped, an interrupted one continues from its last checkpoint in the
@@ -93,3 +94,20 @@ def run_status(run: Path) -> dict:
     status = "done" if done >= iterations else "partial" if done else "missing"
     return dict(run=str(run), row=cfg.get("row"), seed=cfg.get("seed"), status=status, iterations=done,
                 budget=iterations, env_steps=steps)
+
+
+def report_run(out: Path, metrics: dict, env_steps: int, preset: str, wandb: bool) -> dict:
+    """Print where a finished run left its checkpoint, metrics, last evaluation video and wandb run; return them."""
+    result = dict(metrics=metrics, checkpoint=str(out / "checkpoints" / "last.ckpt"),
+                  metrics_csv=str(out / "csv" / "metrics.csv"), wandb=str(out / "wandb") if wandb else None,
+                  preset=preset)
+    print(f"\nvitac: preset={preset}, {env_steps} env steps, "
+          f"success (train episodes) {metrics.get('charts/success_rate', float('nan')):.3f}, "
+          f"eval {metrics.get('eval/success_rate', float('nan')):.3f}")
+    print(f"  checkpoint: {result['checkpoint']}\n  metrics:    {result['metrics_csv']}")
+    videos = sorted((out / "videos").glob("*.mp4"))
+    if videos:  # the last evaluation's episode: outside view, wrist camera, both force fields
+        print(f"  video:      {videos[-1]}")
+    if wandb:
+        print(f"  wandb:      {result['wandb']}  (offline; `wandb sync {out}/wandb/offline-run-*` to upload)")
+    return result

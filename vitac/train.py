@@ -21,7 +21,7 @@ from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
 from vitac.run_config import build_policy_from_config, check_modalities, load_teacher, task_settings
-from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics
+from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics, report_run
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.instantiate import instantiate
@@ -101,19 +101,7 @@ def train(cfg: DictConfig) -> dict:
     finally:
         envs.close()
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
-    result = dict(metrics=metrics, checkpoint=str(out / "checkpoints" / "last.ckpt"),
-                  metrics_csv=str(out / "csv" / "metrics.csv"),
-                  wandb=str(out / "wandb") if cfg.logger.wandb else None, preset=cfg.preset.name)
-    print(f"\nvitac: preset={cfg.preset.name}, {module.env_steps} env steps, "
-          f"success (train episodes) {metrics.get('charts/success_rate', float('nan')):.3f}, "
-          f"eval {metrics.get('eval/success_rate', float('nan')):.3f}")
-    print(f"  checkpoint: {result['checkpoint']}\n  metrics:    {result['metrics_csv']}")
-    videos = sorted((out / "videos").glob("*.mp4"))
-    if videos:  # the last evaluation's episode: outside view, wrist camera, both force fields
-        print(f"  video:      {videos[-1]}")
-    if result["wandb"]:
-        print(f"  wandb:      {result['wandb']}  (offline; `wandb sync {out}/wandb/offline-run-*` to upload)")
-    return result
+    return report_run(out, metrics, module.env_steps, cfg.preset.name, wandb=bool(cfg.logger.wandb))
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
