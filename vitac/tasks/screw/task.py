@@ -126,7 +126,11 @@ class ScrewTask(GraspedPartTask):
         return float(np.linalg.norm(self.nut_pos(physics) - self.goal_pos(physics))) < self.config.success_distance
 
     def failure(self, physics) -> str | None:
-        """Factory's failures, by name, or None: the nut slipped in the grasp, fell off the bolt or moved far."""
+        """Factory's failures, by name, or None: the nut slipped in the grasp, fell off the bolt or moved far.
+        Memoised per physics state: the episode's end, its discount and its outcome all ask."""
+        return self._per_state("failure", physics, lambda: self._failure(physics))
+
+    def _failure(self, physics) -> str | None:
         d, ids = physics.data, self._ids
         nut, goal = self.nut_pos(physics), self.goal_pos(physics)
         nut_up = d.xmat[ids["held_body"]].reshape(3, 3)[:, 2]
