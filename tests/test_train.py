@@ -44,7 +44,9 @@ def _losses(run):
 
 def test_smoke_run_writes_checkpoint_and_metrics_and_logs_every_loss_term(tmp_path):
     run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
-    assert (tmp_path / "run" / "checkpoints" / "last.ckpt").is_file()
+    # last.ckpt has one writer (no Lightning "last-v1.ckpt" beside it), periodic ones are named by iteration
+    assert sorted(p.name for p in (tmp_path / "run" / "checkpoints").iterdir()) == [
+        "best.ckpt", "iter_00001.ckpt", "iter_00002.ckpt", "last.ckpt"]
     rows = [r for r in _rows(run["metrics_csv"]) if r.get("losses/loss")]
     assert len(rows) == 2
     for key in ("losses/policy_loss", "losses/value_loss", "losses/bounds_loss", "losses/entropy", "losses/sym_loss",
