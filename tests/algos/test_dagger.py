@@ -139,3 +139,20 @@ def test_bad_dagger_values_are_refused_naming_the_key():
         with pytest.raises(ValueError, match=pattern):
             DAgger(_policy(["experiment=table1/privileged"]), envs, _FunctionTeacher(), horizon=8, seq_len=4,
                    minibatch_size=8, **kwargs)
+
+
+@pytest.mark.slow
+def test_a_student_with_the_teachers_observations_learns_to_insert(tmp_path):
+    """The end-to-end check distillation once failed (one gradient step an iteration never fitted the labels):
+    recipe/privileged_dagger fits the teacher's actions and inserts on its own after the hand-over."""
+    import csv
+
+    from vitac.train import train
+
+    run = train(compose_config(["experiment=recipe/privileged_dagger", "logger=csv"], output_dir=tmp_path / "run"))
+    rows = [r for r in csv.DictReader(open(run["metrics_csv"])) if r.get("losses/action_mse")]
+    last = rows[-12:]  # three episodes' worth of iterations, all with the student alone acting
+    assert all(float(r["charts/beta"]) == 0.0 for r in last)
+    assert np.mean([float(r["losses/action_mse"]) for r in last]) < 0.05
+    success = [float(r["charts/success_rate"]) for r in last if r["charts/success_rate"] != "nan"]
+    assert np.mean(success) >= 0.6, success

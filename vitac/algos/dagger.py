@@ -48,7 +48,7 @@ class DAgger(RolloutAlgorithm):
     needs_teacher = True  # train() loads `teacher_ckpt` and adds the teacher's observations to the environments'
 
     def __init__(self, policy: VisuoTactilePolicy, envs, teacher: VisuoTactilePolicy, horizon: int = 64,
-                 seq_len: int = 32, minibatch_size: int = 1024, mini_epochs: int = 1, lr: float = 1e-3,
+                 seq_len: int = 32, minibatch_size: int = 256, mini_epochs: int = 4, lr: float = 1e-3,
                  grad_norm: float = 1.0, loss: str = "mse", beta_start: float = 1.0, beta_end: float = 0.0,
                  beta_iterations: int = 20, student_actions: str = "mean", seed: int = 0, rollout_threads: int = 1,
                  update_threads: int = 2, run_config: dict | None = None,

@@ -44,13 +44,19 @@ def mcnemar_exact(only_first: int, only_second: int) -> float:
     return min(1.0, 2 * tail)
 
 
+def discordant(first: list, second: list) -> tuple[int, int]:
+    """Episodes (paired by position) that succeeded only in `first`, and only in `second`."""
+    only_first = sum(bool(x) and not y for x, y in zip(first, second, strict=True))
+    only_second = sum(bool(y) and not x for x, y in zip(first, second, strict=True))
+    return only_first, only_second
+
+
 def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
     differ = [k for k in SAME_EPISODES if first.get(k) != second.get(k)]
     if differ:
         raise SystemExit(f"--paired: {names[0]} and {names[1]} are not the same episodes ({differ} differ)")
     a, b = ([e["outcome"] == "inserted" for e in final_states(r)] for r in (first, second))
-    only_first = sum(x and not y for x, y in zip(a, b, strict=True))
-    only_second = sum(y and not x for x, y in zip(a, b, strict=True))
+    only_first, only_second = discordant(a, b)
     return (f"paired: inserted only by {names[0]}: {only_first}, only by {names[1]}: {only_second}, "
             f"exact McNemar two-sided p = {mcnemar_exact(only_first, only_second):.3f}")
 

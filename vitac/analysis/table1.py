@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vitac.analysis.compare import wall_clock_hours
-from vitac.analysis.outcomes import mcnemar_exact
+from vitac.analysis.outcomes import discordant, mcnemar_exact
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import read_metrics
 from vitac.utils.records import read_whole
@@ -100,10 +100,8 @@ def paired_test(first: dict, second: dict) -> dict | None:
         if not (a.get("episode_success") and b.get("episode_success")) or a["eval_seed"] != b["eval_seed"]:
             continue
         n = min(len(a["episode_success"]), len(b["episode_success"]))
-        x, y = a["episode_success"][:n], b["episode_success"][:n]
-        only_first += sum(p and not q for p, q in zip(x, y, strict=True))
-        only_second += sum(q and not p for p, q in zip(x, y, strict=True))
-        episodes += n
+        first_only, second_only = discordant(a["episode_success"][:n], b["episode_success"][:n])
+        only_first, only_second, episodes = only_first + first_only, only_second + second_only, episodes + n
     if not episodes:
         return None
     return dict(first=first["row"], second=second["row"], episodes=episodes, only_first=only_first,
