@@ -154,3 +154,35 @@ def test_the_table_sweep_runs_seed_0_of_every_row_first(sweep):
     from vitac.analysis.status import expected_rows
 
     assert set(expected_rows("table1/*")) == {r.label for r in table1.ROWS}  # every experiment is a row of the report
+
+
+def test_compare_adds_the_distillation_panel_only_when_a_run_distils(tmp_path, monkeypatch):
+    import csv
+
+    from vitac.analysis import compare
+
+    def write(path, with_error):
+        keys = ["charts/env_steps", "charts/SPS", "charts/success_rate", "eval/success_rate"]
+        keys += ["losses/action_mse"] if with_error else []
+        with open(path, "w", newline="") as f:
+            writer = csv.DictWriter(f, keys)
+            writer.writeheader()
+            for i in range(1, 6):
+                writer.writerow({"charts/env_steps": 1024 * i, "charts/SPS": 100, "charts/success_rate": 0.1 * i,
+                                 "eval/success_rate": 0.1 * i, **({"losses/action_mse": 1 / i} if with_error else {})})
+    write(tmp_path / "ppo.csv", False)
+    write(tmp_path / "dagger.csv", True)
+    panels = []
+    original = compare.compare
+
+    def spy(runs, out, title=""):
+        import matplotlib.pyplot as plt
+
+        original(runs, out, title)
+        panels.append(len(plt.gcf().axes))
+    monkeypatch.setattr(compare, "compare", spy)
+    compare.main(["--run", f"ppo={tmp_path / 'ppo.csv'}", "--out", str(tmp_path / "a.png")])
+    compare.main(["--run", f"ppo={tmp_path / 'ppo.csv'}", "--run", f"dagger={tmp_path / 'dagger.csv'}",
+                  "--out", str(tmp_path / "b.png")])
+    assert panels == [3, 4]
+    assert (tmp_path / "a.png").stat().st_size > 1000 and (tmp_path / "b.png").stat().st_size > 1000

@@ -1,5 +1,5 @@
-"""Several runs in one figure: held-out success against env steps and against hours of training, and training
-success against env steps.
+"""Several runs in one figure: held-out success against env steps and against hours of training, training
+success against env steps and, where a run distils (DAgger), its action error to the teacher.
 
     python -m vitac.runs compare --run "label=<run>/csv/metrics.csv[,<resumed run>/csv/metrics.csv]" --run ... \
         --out runs.png [--title ...]
@@ -31,15 +31,16 @@ def wall_clock_hours(rows) -> list[tuple[float, float]]:
 
 def compare(runs: dict[str, list[Path]], out: Path, title: str = "") -> None:
     """One figure of several runs (label -> metrics CSVs in order): held-out success against env steps and
-    against hours of training, and training success against env steps."""
+    against hours of training, training success against env steps and, if any run distils, the action error."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 3.8))
-    for i, (label, paths) in enumerate(runs.items()):
-        rows = read_segments(paths)[0]
+    segments = {label: read_segments(paths)[0] for label, paths in runs.items()}
+    distils = any(column(rows, "losses/action_mse") for rows in segments.values())
+    fig, axes = plt.subplots(1, 3 + distils, figsize=(5 * (3 + distils), 3.8))
+    for i, (label, rows) in enumerate(segments.items()):
         color = f"C{i}"
         evals = column(rows, "eval/success_rate")
         hours = dict(wall_clock_hours(rows))
@@ -50,11 +51,17 @@ def compare(runs: dict[str, list[Path]], out: Path, title: str = "") -> None:
         train = column(rows, "charts/success_rate")
         if train:
             axes[2].plot(*zip(*smooth(train, 20), strict=True), color=color, label=label)
+        error = column(rows, "losses/action_mse")
+        if distils and error:
+            axes[3].plot(*zip(*smooth(error, 8), strict=True), color=color, label=label)
     axes[0].set(xlabel="env steps", ylabel="success rate", title="held-out evaluation during training", ylim=(-0.02, 1.02))
     axes[1].set(xlabel="hours of training on 2 cores", ylabel="success rate", title="the same against wall-clock",
                 ylim=(-0.02, 1.02))
     axes[2].set(xlabel="env steps", ylabel="success rate",
-                title="training episodes (curriculum ranges, mean of 20)", ylim=(-0.02, 1.02))
+                title="training episodes (their randomization, mean of 20)", ylim=(-0.02, 1.02))
+    if distils:  # smoothed over 8 iterations: the error cycles with the episode's phase (early steps are hardest)
+        axes[3].set(xlabel="env steps", ylabel="MSE per action dimension", yscale="log",
+                    title="distillation: action error to the teacher (mean of 8)")
     for ax in axes:
         ax.legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
