@@ -185,3 +185,30 @@ def test_state_independent_log_std_is_the_same_for_every_input_and_trained_only_
         assert torch.all(head.log_std.grad == 3 * 2)
     with pytest.raises(ValueError, match="log_std_mode"):
         RecurrentActorHead(4, log_std_mode="learned")
+
+
+def test_force_fields_reach_the_encoders_on_one_unit_scale_shared_by_both_pads():
+    from vitac.models.normalizer import ForceFieldScale
+
+    torch.manual_seed(0)
+    policy = _policy("sym")
+    assert policy.force_field_keys == ["tactile_left", "tactile_right"]
+    field = torch.rand(4, 3, 32, 32) * 0.01
+    torch.testing.assert_close(policy.force_scale(field), field)  # the identity before any statistics
+    # Grasp-sized forces (newtons per taxel, about 1e-3 to 3e-2), one scale per component
+    scales = torch.tensor([0.002, 0.0005, 0.03])[:, None, None]
+    left, right = torch.randn(64, 3, 32, 32) * scales, torch.randn(64, 3, 32, 32) * scales
+    batch = {"proprio": torch.randn(64, 19), "critic_state": torch.randn(64, 42), "tactile_left": left,
+             "tactile_right": right}
+    policy.update_normalizers(batch)
+    scaled = policy.force_scale(torch.cat([left, right]))
+    rms = scaled.square().mean(dim=(0, 2, 3)).sqrt()
+    torch.testing.assert_close(rms, torch.ones(3), atol=0.02, rtol=0)
+    # No centering: zero force stays zero, and the mirrored field scales as the field
+    assert policy.force_scale(torch.zeros(1, 3, 32, 32)).abs().max() == 0
+    torch.testing.assert_close(policy.force_scale(mirror_pad(left)), mirror_pad(policy.force_scale(left)))
+    with pytest.raises(FloatingPointError, match="tactile_left"):
+        policy.update_normalizers(dict(batch, tactile_left=left.masked_fill(left > 0.01, float("nan"))))
+    # the statistics travel with the checkpoint
+    assert {"force_scale.mean_square", "force_scale.count"} <= set(policy.state_dict())
+    assert ForceFieldScale(3).mean_square.tolist() == [1.0, 1.0, 1.0]

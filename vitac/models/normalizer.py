@@ -37,3 +37,37 @@ class RunningNormalizer(nn.Module):
 
     def denormalize(self, x: torch.Tensor) -> torch.Tensor:
         return x * torch.sqrt(self.var + self.epsilon).to(x.dtype) + self.mean.to(x.dtype)
+
+
+class ForceFieldScale(nn.Module):
+    """Divides tactile force fields (C, H, W) by each channel's running root mean square over taxels and samples.
+
+    Raw fields are newtons per taxel, about 1e-3 to 3e-2 in a grasp: at that scale the encoders' biases swamp
+    their input and a student learns nothing from touch. No centering, so zero force stays zero and a mirrored
+    field (rows flipped, one shear channel negated) scales as the field does; one instance serves both pads, so
+    the symmetry prior compares maps on one scale. Before its first update it is the identity.
+
+    Args:
+        channels: force components per taxel.
+        clip: bound on scaled values (a contact spike many times the typical force).
+        epsilon: floor of the mean square.
+    """
+
+    def __init__(self, channels: int, clip: float = 20.0, epsilon: float = 1e-10):
+        super().__init__()
+        self.register_buffer("mean_square", torch.ones(channels, dtype=torch.float64))
+        self.register_buffer("count", torch.tensor(epsilon, dtype=torch.float64))
+        self.clip, self.epsilon = clip, epsilon
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        """x: (N, C, H, W) maps; each counts as one sample of each channel's mean square."""
+        x = x.to(self.mean_square.device, torch.float64)
+        n = x.shape[0]
+        total = self.count + n
+        self.mean_square = (self.mean_square * self.count + x.square().mean(dim=(0, 2, 3)) * n) / total
+        self.count = total
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        scale = torch.sqrt(self.mean_square + self.epsilon).to(x.dtype)[:, None, None]
+        return (x / scale).clamp(-self.clip, self.clip)

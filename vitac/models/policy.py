@@ -7,7 +7,7 @@ from collections.abc import Callable
 import torch
 from torch import nn
 
-from vitac.models.normalizer import RunningNormalizer
+from vitac.models.normalizer import ForceFieldScale, RunningNormalizer
 from vitac.models.symmetry import SymmetryRegularizer
 from vitac.tasks.config import ObservationSpec
 
@@ -42,6 +42,9 @@ class VisuoTactilePolicy(nn.Module):
         self.encoders = nn.ModuleDict({k: image_encoder(in_shape=shapes[k]) for k in self.image_keys})
         self.vector_encoders = nn.ModuleDict({k: vector_encoder(in_dim=int(shapes[k][0])) for k in self.vector_keys})
         self.normalizers = nn.ModuleDict({k: RunningNormalizer(shapes[k]) for k in self.vector_keys})
+        # The tactile pads' force fields, on one learned scale (camera pixels are scaled to [0, 1] by the encoder).
+        self.force_field_keys = [k for k in self.image_keys if self.roles[k] in ("left", "right")]
+        self.force_scale = ForceFieldScale(shapes[self.force_field_keys[0]][0]) if self.force_field_keys else None
         features = 0
         self.fusion = None
         if self.image_keys:
@@ -81,19 +84,24 @@ class VisuoTactilePolicy(nn.Module):
 
     @torch.no_grad()
     def update_normalizers(self, obs: dict) -> None:
-        keys = self.vector_keys + (["critic_state"] if self.critic is not None else [])
+        keys = self.vector_keys + self.force_field_keys + (["critic_state"] if self.critic is not None else [])
         for k in keys:  # one NaN would silently poison the statistics, and every output after them
             if not torch.isfinite(obs[k]).all():
                 raise FloatingPointError(f"observation {k!r} holds non-finite values; refusing to update its normalizer")
         for k in self.vector_keys:
             self.normalizers[k].update(obs[k])
+        if self.force_scale is not None:
+            self.force_scale.update(torch.cat([obs[k] for k in self.force_field_keys]))
         if self.critic is not None:
             self.critic_normalizer.update(obs["critic_state"])
+
+    def _scaled(self, key: str, image: torch.Tensor) -> torch.Tensor:
+        return self.force_scale(image.float()) if key in self.force_field_keys else image
 
     def _features(self, obs: dict, lead: tuple):
         """Encode (T*B)-flattened observations; returns features (T, B, F) and the image embeddings."""
         flat = lambda x: x.reshape(-1, *x.shape[len(lead):])  # noqa: E731
-        embeddings = {self.roles[k]: self.encoders[k](flat(obs[k])) for k in self.image_keys}
+        embeddings = {self.roles[k]: self.encoders[k](self._scaled(k, flat(obs[k]))) for k in self.image_keys}
         parts = [self.fusion(embeddings)] if self.fusion is not None else []
         for k in self.vector_keys:
             parts.append(self.vector_encoders[k](self.normalizers[k](flat(obs[k]).float())))
@@ -115,6 +123,6 @@ class VisuoTactilePolicy(nn.Module):
             return mean, log_std, value, state
         sym = None
         if self.uses_symmetry:
-            right = obs[self._right_key].reshape(-1, *obs[self._right_key].shape[len(lead):])
+            right = self._scaled(self._right_key, obs[self._right_key].reshape(-1, *obs[self._right_key].shape[len(lead):]))
             sym = self.regularizer.per_sample(embeddings["left"], self.encoders[self._right_key], right)
         return mean, log_std, value, state, sym
