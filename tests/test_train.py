@@ -325,7 +325,7 @@ def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_res
                               "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
                              capture_output=True, text=True).stdout.splitlines()
     assert summary[0] == "env steps: 9,576,448 -> 10,496,000 (450 iterations)"
-    assert summary[1] == "median env steps/s: 1028"
+    assert summary[1] == "median env steps/s: 1028; 0.25 hours of training"
     assert "overall 75%" in summary[5]
     assert summary[-2].startswith("learning rate range: ") and summary[-1].startswith("explained variance: first ")
     cut = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", "--max-steps", "1e7",
@@ -340,9 +340,15 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
                      "1000,900,0.1,0.02,3.0,0.25\n2000,1100,0.1,0.04,2.9,0.75\n")
     summary = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", str(older)], check=True, cwd=ROOT,
                              capture_output=True, text=True).stdout.splitlines()
-    assert summary[:2] == ["env steps: 1,000 -> 2,000 (2 iterations)", "median env steps/s: 1000"]
-    assert summary[2] == "learning rate: not logged by this run (an older version)"
-    assert summary[-1] == "explained variance: not logged by this run (an older version)"
+    assert summary[:2] == ["env steps: 1,000 -> 2,000 (2 iterations)", "median env steps/s: 1000; 0.00 hours of training"]
+    assert summary[2] == "learning rate: not logged by this run (another algorithm or an older version)"
+    assert summary[-1] == "explained variance: not logged by this run (another algorithm or an older version)"
+    # a distillation run: no PPO statistics, its action error to the teacher instead
+    dagger = subprocess.run([sys.executable, "-m", "vitac.runs", "summary",
+                             "docs/data/results/dagger_privileged_metrics.csv"], check=True, cwd=ROOT,
+                            capture_output=True, text=True).stdout
+    assert "median approx KL: not logged by this run" in dagger
+    assert "action error to the teacher (MSE per dimension, mean of 8 iterations): first 0.209, last 0.012" in dagger
     foreign = tmp_path / "foreign.csv"
     foreign.write_text("a,b\n1,2\n")
     result = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", str(foreign)], cwd=ROOT, capture_output=True, text=True)

@@ -3,16 +3,18 @@
     python -m vitac.runs summary <run>/csv/metrics.csv [<resumed run>/csv/metrics.csv ...] [--window 1e6]
         [--max-steps 8e6]   # only the iterations up to that many env steps, to compare runs at one budget
 
-Prints env steps covered, iterations, median env steps/s, the learning rate (median and 10th-90th
-percentile), median approximate KL, entropy at the first and last iteration, training success (mean per
-`--window` env steps and overall), the range of the held-out evaluations, the learning rate's extremes and
-the explained variance of the value targets (first iteration and median). Segments are read as
-vitac/analysis/curves.py reads them.
+Prints env steps covered, iterations, median env steps/s and hours of training, the learning rate (median and
+10th-90th percentile), median approximate KL, entropy at the first and last iteration (PPO), the action error to
+the teacher (DAgger: first and last 8 iterations), training success (mean per `--window` env steps and
+overall), the range of the held-out evaluations, the learning rate's extremes and the explained variance of
+the value targets (first iteration and median). A figure a run did not log is said to be missing. Segments are
+read as vitac/analysis/curves.py reads them.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import statistics
 from pathlib import Path
 
@@ -20,6 +22,16 @@ import numpy as np
 
 from vitac.analysis.curves import column, read_segments
 from vitac.utils.cli import number_above, stop_quietly_when_the_reader_closes
+
+
+def training_hours(rows) -> float:
+    """Hours the logged iterations took, from each one's env steps and env steps/s (a segment may start late:
+    its first iteration is taken to be as long as its second)."""
+    timed = column(rows, "charts/SPS")  # (env steps, env steps/s) per iteration
+    if len(timed) < 2:
+        return 0.0
+    sizes = [timed[1][0] - timed[0][0]] + [b[0] - a[0] for a, b in itertools.pairwise(timed)]
+    return sum(size / sps for size, (_, sps) in zip(sizes, timed, strict=True) if sps > 0) / 3600
 
 
 def main(argv=None):
@@ -35,16 +47,21 @@ def main(argv=None):
     steps, lr, entropy = values("charts/env_steps"), values("charts/lr"), values("losses/entropy")
     success, evals = column(rows, "charts/success_rate"), values("eval/success_rate")
     explained = values("losses/explained_variance")
-    missing = "not logged by this run (an older version)"
+    missing = "not logged by this run (another algorithm or an older version)"
     print(f"env steps: {steps[0]:,.0f} -> {steps[-1]:,.0f} ({len(values('losses/loss'))} iterations)")
-    print(f"median env steps/s: {statistics.median(values('charts/SPS')):.0f}")
+    print(f"median env steps/s: {statistics.median(values('charts/SPS')):.0f}; "
+          f"{training_hours(rows):.2f} hours of training")
     if lr:
         p10, p50, p90 = np.percentile(lr, [10, 50, 90])
         print(f"learning rate: median {p50:.2g} (10th-90th percentile {p10:.2g} to {p90:.2g})")
     else:
         print(f"learning rate: {missing}")
-    print(f"median approx KL: {statistics.median(values('losses/approx_kl')):.3f}")
-    print(f"entropy: {entropy[0]:.2f} -> {entropy[-1]:.2f}")
+    kl, error = values("losses/approx_kl"), values("losses/action_mse")
+    print(f"median approx KL: {statistics.median(kl):.3f}" if kl else f"median approx KL: {missing}")
+    print(f"entropy: {entropy[0]:.2f} -> {entropy[-1]:.2f}" if entropy else f"entropy: {missing}")
+    if error:  # the mean of 8 iterations: the error cycles with the episodes' phase
+        print(f"action error to the teacher (MSE per dimension, mean of 8 iterations): first "
+              f"{statistics.mean(error[:8]):.3f}, last {statistics.mean(error[-8:]):.3f}")
     start = success[0][0]
     windows: dict[int, list] = {}
     for s, v in success:
