@@ -668,7 +668,7 @@ def test_a_student_with_the_teachers_observations_and_architecture_converges_to_
     ("+obs.extra=1", ValueError, r"obs\.extra=1 is not allowed: expected one of \['name', 'modalities'\]"),
     ("logger.wandb=maybe", ValueError, r"logger\.wandb='maybe' is not allowed: expected true or false"),
     ("init_exclude=5", ValueError, r"init_exclude=5 is not allowed"),
-    ("init_exclude=[policy.head]", ValueError, r"and \[\] unless init_ckpt is set"),
+    ("init_exclude=[policy.head]", ValueError, r"init_ckpt=None is not allowed: expected a checkpoint to start from"),
     ("init_ckpt=/no/such.ckpt", FileNotFoundError, r"init_ckpt='/no/such.ckpt': no such checkpoint file"),
     ("critic_ckpt=/no/such.ckpt", FileNotFoundError, r"critic_ckpt='/no/such.ckpt': no such checkpoint file"),
 ])

@@ -96,8 +96,11 @@ def check_run(cfg: dict) -> dict:
     check_keys(cfg)
     check_flag("freeze_critic", cfg["freeze_critic"])
     check_flag("logger.wandb", cfg["logger"]["wandb"])
-    if not isinstance(cfg["init_exclude"], list) or (cfg["init_exclude"] and not cfg["init_ckpt"]):
-        refuse("init_exclude", cfg["init_exclude"], "a list of parameter-name prefixes, and [] unless init_ckpt is set")
+    if not isinstance(cfg["init_exclude"], list):
+        refuse("init_exclude", cfg["init_exclude"], "a list of parameter-name prefixes")
+    if cfg["init_exclude"] and not cfg["init_ckpt"]:  # e.g. a fine-tuning experiment run without its student
+        refuse("init_ckpt", cfg["init_ckpt"], f"a checkpoint to start from (init_ckpt=<run>/checkpoints/last.ckpt), "
+               f"since init_exclude={cfg['init_exclude']} leaves parts of one out")
     for key in ("init_ckpt", "critic_ckpt"):
         if cfg[key] and not resolve_checkpoint(cfg[key]).is_file():
             raise FileNotFoundError(f"{key}={cfg[key]!r}: no such checkpoint file")
