@@ -186,3 +186,25 @@ def test_compare_adds_the_distillation_panel_only_when_a_run_distils(tmp_path, m
                   "--out", str(tmp_path / "b.png")])
     assert panels == [3, 4]
     assert (tmp_path / "a.png").stat().st_size > 1000 and (tmp_path / "b.png").stat().st_size > 1000
+
+
+def test_a_video_frame_of_zero_force_fields_draws_without_a_warning():
+    """The first step of an episode: the residual fields (paper eq. 2) are exactly zero, no arrow to scale."""
+    import warnings
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from vitac.viz import _frame
+
+    fig, axes = plt.subplots(1, 4)
+    zero = np.zeros((3, 32, 32), dtype=np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        frame = _frame(fig, axes, np.zeros((240, 240, 3), np.uint8), np.zeros((64, 64, 3), np.uint8), zero, zero,
+                       step=0, info={"keypoint_distance": 0.01})
+    plt.close(fig)
+    assert frame.ndim == 3 and frame.shape[2] == 3
