@@ -14,9 +14,11 @@ from vitac.analysis.curves import column, read_segments, smooth
 
 
 def wall_clock_hours(rows) -> list[tuple[float, float]]:
-    """(env steps, hours of training so far) per iteration, from each iteration's steps and env steps/s (the
-    run starting at 0 env steps)."""
-    out, hours, previous = [], 0.0, 0.0
+    """(env steps, hours of training so far) per iteration, from each iteration's steps and env steps/s. A run's
+    rows may start late (a resumed segment's own CSV): its first iteration is taken to be as long as its second."""
+    timed = column(rows, "charts/SPS")
+    first_size = timed[1][0] - timed[0][0] if len(timed) > 1 else timed[0][0] if timed else 0.0
+    out, hours, previous = [], 0.0, timed[0][0] - first_size if timed else 0.0
     for r in rows:
         try:
             steps, sps = float(r["charts/env_steps"]), float(r["charts/SPS"])

@@ -14,24 +14,14 @@ read as vitac/analysis/curves.py reads them.
 from __future__ import annotations
 
 import argparse
-import itertools
 import statistics
 from pathlib import Path
 
 import numpy as np
 
+from vitac.analysis.compare import wall_clock_hours
 from vitac.analysis.curves import column, read_segments
 from vitac.utils.cli import number_above, stop_quietly_when_the_reader_closes
-
-
-def training_hours(rows) -> float:
-    """Hours the logged iterations took, from each one's env steps and env steps/s (a segment may start late:
-    its first iteration is taken to be as long as its second)."""
-    timed = column(rows, "charts/SPS")  # (env steps, env steps/s) per iteration
-    if len(timed) < 2:
-        return 0.0
-    sizes = [timed[1][0] - timed[0][0]] + [b[0] - a[0] for a, b in itertools.pairwise(timed)]
-    return sum(size / sps for size, (_, sps) in zip(sizes, timed, strict=True) if sps > 0) / 3600
 
 
 def main(argv=None):
@@ -49,8 +39,9 @@ def main(argv=None):
     explained = values("losses/explained_variance")
     missing = "not logged by this run (another algorithm or an older version)"
     print(f"env steps: {steps[0]:,.0f} -> {steps[-1]:,.0f} ({len(values('losses/loss'))} iterations)")
+    hours = wall_clock_hours(rows)
     print(f"median env steps/s: {statistics.median(values('charts/SPS')):.0f}; "
-          f"{training_hours(rows):.2f} hours of training")
+          f"{hours[-1][1] if hours else 0.0:.2f} hours of training")
     if lr:
         p10, p50, p90 = np.percentile(lr, [10, 50, 90])
         print(f"learning rate: median {p50:.2g} (10th-90th percentile {p10:.2g} to {p90:.2g})")
