@@ -139,13 +139,23 @@ def test_peg_wider_than_hole_is_refused():
         InsertionConfig.from_dict({"clearance": 0.0})
 
 
-@pytest.mark.parametrize("preset", ["cpu", "paper", "smoke"])
+@pytest.mark.parametrize("preset", ["cpu", "cpu_table1", "paper", "smoke"])
 def test_presets_compose_and_name_themselves(preset):
     cfg = compose_config([f"preset={preset}"])
     assert cfg.preset.name == preset
     algo = OmegaConf.to_container(cfg.algo)
     assert (algo["horizon"] * cfg.envs.num_envs) % algo["minibatch_size"] == 0
     assert algo["horizon"] % algo["seq_len"] == 0
+
+
+def test_table_one_budget_is_the_distillation_recipe_stopped_at_450_iterations():
+    """Every sensing row at preset=cpu_table1 distils as recipe/cmt_sym_dagger does, for 450 iterations."""
+    recipe = compose_config(["experiment=recipe/cmt_sym_dagger"])
+    for row in ("tactile", "wrist", "fusion_cmt_sym"):
+        cfg = compose_config(["preset=cpu_table1", f"experiment=table1/{row}"])
+        assert cfg.algo == recipe.algo and cfg.envs == recipe.envs and cfg.teacher_ckpt == recipe.teacher_ckpt
+        assert cfg.trainer.iterations * cfg.envs.num_envs * cfg.algo.horizon == 460_800
+    assert compose_config(["preset=cpu_table1", "algo=ppo"]).algo.lr == compose_config(["algo=ppo"]).algo.lr
 
 
 EXPERIMENTS = sorted(str(p.relative_to(Path(CONF) / "experiment").with_suffix("")) for p in

@@ -151,6 +151,9 @@ def test_the_table_sweep_runs_seed_0_of_every_row_first(sweep):
     config = yaml.safe_load((ROOT / "conf" / "sweep" / f"{sweep}.yaml").read_text())
     params = config["hydra"]["sweeper"]["params"]
     assert list(params) == ["seed", "+experiment/table1"] and config["resume"] == "auto"  # the first varies slowest
+    # The sensing rows, distilled at one budget; the privileged rows are the teachers, trained by their PPO recipes.
+    assert params["+experiment/table1"] == "glob(*,exclude=privileged*)"
+    assert config["defaults"] == [{"override /preset": "cpu_table1"}]
     from vitac.analysis.status import expected_rows
 
     assert set(expected_rows("table1/*")) == {r.label for r in table1.ROWS}  # every experiment is a row of the report

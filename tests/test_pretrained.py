@@ -1,0 +1,31 @@
+"""The shipped policies (pretrained/): each loads by name, weights-only, as the policy pretrained/README.md says
+it is, and acts on its task's observations."""
+
+from __future__ import annotations
+
+import torch
+
+from vitac.run_config import load_policy
+from vitac.tasks import make_task_config
+from vitac.utils.checkpoint import load_checkpoint
+
+
+def test_the_shipped_teacher_is_the_privileged_policy():
+    policy, _, _ = load_policy("pretrained/privileged", key="teacher_ckpt")
+    assert set(policy.input_keys) == {"proprio", "peg_state", "critic_state"} and not policy.image_keys
+    assert load_checkpoint("pretrained/privileged")["env_steps"] == 18_513_920  # iteration 2,260 of 32 x 256
+
+
+def test_the_shipped_student_is_the_distilled_wrist_tactile_cmt_sym_policy():
+    policy, _, settings = load_policy("pretrained/cmt_sym_dagger")
+    config = load_checkpoint("pretrained/cmt_sym_dagger")["vitac_config"]
+    assert config["algo"]["_target_"] == "vitac.algos.dagger.DAgger" and config["teacher_ckpt"] == "pretrained/privileged"
+    assert type(policy.fusion).__name__ == "CrossModalTransformer" and policy.regularizer.lambda_sym == 1.0
+    assert {"wrist", "tactile_left", "tactile_right"} <= set(policy.image_keys) and "peg_state" not in policy.input_keys
+    # The force-field scale was learned (an untrained one is the identity: mean square 1).
+    assert policy.force_scale.count > 1e5 and (policy.force_scale.mean_square < 0.1).all()
+    specs = make_task_config(settings).observation_specs()
+    obs = {k: torch.zeros((1, 2, *specs[k].shape)) for k in policy.input_keys}
+    with torch.no_grad():
+        mean, _, _, _ = policy(obs, policy.initial_state(2), torch.ones(1, 2, dtype=torch.bool))
+    assert mean.shape == (1, 2, 6) and torch.isfinite(mean).all()
