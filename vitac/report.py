@@ -64,7 +64,8 @@ def figures(table: dict, out: Path) -> list[Path]:
             if points:
                 ax.plot(*zip(*points, strict=True), "o-", ms=2, lw=1, label=row["row"] if i == 0 else None)
     ax.set(xlabel="env steps", ylabel="held-out success rate", title="training-time evaluation")
-    ax.legend(fontsize=6)
+    if ax.get_legend_handles_labels()[0]:  # an empty sweep draws an empty figure, without matplotlib's warning
+        ax.legend(fontsize=6)
     paths = [_save(fig, out / "learning_curves.png")]
     fig, ax = plt.subplots(figsize=(5, 4))
     for name, label in FUSION_ROWS.items():
@@ -82,7 +83,8 @@ def figures(table: dict, out: Path) -> list[Path]:
             density = gaussian_kde(np.vstack([x, y]))(np.vstack([grid_x.ravel(), grid_y.ravel()])).reshape(grid_x.shape)
             ax.contour(grid_x, grid_y, density, levels=4, colors=[dots.get_facecolor()[0]], linewidths=0.8)
     ax.set(xlabel="success rate (%)", ylabel="steps to succeed", title="per trial (one seed each)")
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:  # no fusion row evaluated yet
+        ax.legend(fontsize=7)
     paths.append(_save(fig, out / "success_vs_steps.png"))
     return paths
 

@@ -48,10 +48,11 @@ CLAIMS = [("Fusion - CMT (lambda_sym=0)", "Fusion - Gated (lambda_sym=0)"),
 
 
 def mean_std(values: list[float]) -> tuple[float | None, float | None]:
+    """Mean and sample standard deviation; one value has no spread to report (None, not 0)."""
     if not values:
         return None, None
     mean = sum(values) / len(values)
-    return mean, math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else 0.0
+    return mean, math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1)) if len(values) > 1 else None
 
 
 def evaluated(cell: dict, min_episodes: int) -> dict:
@@ -113,7 +114,7 @@ def _ours(row: dict, tex: bool = False) -> str:
         started = [c for c in row["seeds"].values() if c["status"] != "missing"]
         return "missing" if not started else f"not evaluated ({len(started)} run{'s' * (len(started) > 1)} started)"
     pm = r" $\pm$ " if tex else " ± "
-    text = f"{row['mean']:.2f}{pm}{row['std']:.2f}"
+    text = f"{row['mean']:.2f}" + (f"{pm}{row['std']:.2f}" if row["std"] is not None else "")  # one seed: no spread
     return text + (f" ({row['improvement']:+.2f})" if row["improvement"] is not None else "")
 
 
