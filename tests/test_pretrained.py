@@ -29,3 +29,15 @@ def test_the_shipped_student_is_the_distilled_wrist_tactile_cmt_sym_policy():
     with torch.no_grad():
         mean, _, _, _ = policy(obs, policy.initial_state(2), torch.ones(1, 2, dtype=torch.bool))
     assert mean.shape == (1, 2, 6) and torch.isfinite(mean).all()
+
+
+def test_a_teacher_whose_weights_do_not_fit_its_config_is_refused_naming_the_key(tmp_path):
+    """A checkpoint is rebuilt from its own stored config, so a teacher of another architecture than the student
+    is fine; weights that do not fit that config (a hand-edited file) are refused before anything is simulated."""
+    import pytest
+
+    shipped = torch.load("pretrained/privileged.pt", weights_only=True)
+    shipped["vitac_config"]["head"]["hidden"] = 128  # the LSTM's weights are 256 wide
+    torch.save(shipped, tmp_path / "edited.pt")
+    with pytest.raises(ValueError, match=r"teacher_ckpt=.*edited.pt.*do not fit.*other shape \['head\.lstm"):
+        load_policy(tmp_path / "edited.pt", key="teacher_ckpt")
