@@ -205,9 +205,12 @@ def test_a_video_frame_of_zero_force_fields_draws_without_a_warning():
 
     fig, axes = plt.subplots(1, 4)
     zero = np.zeros((3, 32, 32), dtype=np.float32)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        frame = _frame(fig, axes, np.zeros((240, 240, 3), np.uint8), np.zeros((64, 64, 3), np.uint8), zero, zero,
-                       step=0, info={"keypoint_distance": 0.01})
+    between = zero.copy()
+    between[:2, 1, 1] = 0.3  # shear on a taxel between the arrows drawn (every third): still none to scale
+    for left, right in ((zero, zero), (between, between)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            frame = _frame(fig, axes, np.zeros((240, 240, 3), np.uint8), np.zeros((64, 64, 3), np.uint8), left,
+                           right, step=0, info={"keypoint_distance": 0.01})
+        assert frame.ndim == 3 and frame.shape[2] == 3
     plt.close(fig)
-    assert frame.ndim == 3 and frame.shape[2] == 3

@@ -23,8 +23,9 @@ def _frame(fig, axes, outside, wrist, left, right, step: int, info: dict) -> np.
     for ax, field, name in ((axes[2], left, "left pad"), (axes[3], right[:, ::-1], "right pad (rows flipped)")):
         ax.imshow(field[2], cmap="magma", vmin=0, vmax=vmax)
         rows, cols = np.mgrid[0:field.shape[1]:3, 0:field.shape[2]:3]
-        if np.any(field[:2]):  # quiver's autoscale divides by the longest arrow: none to draw at the grasp reference
-            ax.quiver(cols, rows, field[1][::3, ::3], field[0][::3, ::3], color="cyan")
+        shear = field[:2, ::3, ::3]  # every third taxel
+        if np.any(shear):  # quiver's autoscale divides by the mean arrow: none to draw at the grasp reference
+            ax.quiver(cols, rows, shear[1], shear[0], color="cyan")
         ax.set_title(name, fontsize=8)
     fig.canvas.draw()
     return np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
