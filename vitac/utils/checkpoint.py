@@ -1,11 +1,12 @@
 """Reading and writing vitac checkpoints: read weights-only, written whole; a missing, truncated or foreign file
-is refused with a message."""
+is refused with a message, as is one whose records fail their checksums."""
 
 from __future__ import annotations
 
 import os
 import pickle
 import tempfile
+import zipfile
 from pathlib import Path
 
 import torch
@@ -32,9 +33,20 @@ def _numpy_globals() -> list:
     return [np.ndarray, np.dtype, multiarray._reconstruct, multiarray.scalar, *dtypes]
 
 
+def check_records(path: str | Path) -> None:
+    """Raise `zipfile.BadZipFile` unless every record of the checkpoint archive matches its stored CRC-32. torch
+    does not check them when it loads: a flipped bit in a tensor would load silently as other weights."""
+    with zipfile.ZipFile(path) as archive:
+        for record in archive.infolist():
+            if record.CRC:  # 0: written with torch's CRC option off, nothing to check against
+                archive.read(record)  # zipfile raises on a mismatch
+
+
 def safe_load(path: str | Path) -> dict:
     """torch's weights-only unpickler, which also admits numpy arrays and scalars (a training checkpoint's
-    environment and RNG states): tensors, containers and numbers only, never code."""
+    environment and RNG states): tensors, containers and numbers only, never code; a checkpoint whose records
+    fail their checksums is refused first (`check_records`)."""
+    check_records(path)
     with torch.serialization.safe_globals(_numpy_globals()):
         return torch.load(path, map_location="cpu", weights_only=True)
 
@@ -61,6 +73,13 @@ def load_checkpoint(path: str | Path, key: str = "ckpt") -> dict:
     if not isinstance(checkpoint, dict) or "vitac_config" not in checkpoint or "state_dict" not in checkpoint:
         raise ValueError(f"{key}={str(path)!r} is not a vitac checkpoint (no stored config or weights)")
     return checkpoint
+
+
+def state_mismatch(own: dict, weights: dict) -> tuple[list, list, list]:
+    """How `weights` fails to fit a module whose state dict is `own`: the names it lacks, the names it has in
+    excess, and the names whose tensors have another shape (each sorted)."""
+    missing, unexpected = sorted(own.keys() - weights.keys()), sorted(weights.keys() - own.keys())
+    return missing, unexpected, sorted(k for k in own.keys() & weights.keys() if own[k].shape != weights[k].shape)
 
 
 def export_policy(path: str | Path, out: str | Path) -> dict:
