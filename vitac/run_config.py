@@ -9,7 +9,7 @@ from omegaconf import DictConfig, OmegaConf
 from vitac.models.build import build_policy
 from vitac.tasks import DEFAULT_TASK_CONFIG, make_task_config
 from vitac.tasks.config import GraspTaskConfig
-from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.checkpoint import load_checkpoint, state_mismatch
 
 
 def uses_critic(cfg: DictConfig) -> bool:
@@ -62,10 +62,7 @@ def load_policy(ckpt: str | Path, key: str = "ckpt"):
         cfg.fusion, cfg.reg.lambda_sym = {"_target_": "vitac.models.fusion.NaiveFusion", "_partial_": True}, 0.0
     policy = build_policy_from_config(cfg, task_config)
     weights = {k[len("policy."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("policy.")}
-    own = policy.state_dict()
-    missing = sorted(own.keys() - weights.keys())
-    unexpected = sorted(weights.keys() - own.keys())
-    shapes = sorted(k for k in own.keys() & weights.keys() if own[k].shape != weights[k].shape)
+    missing, unexpected, shapes = state_mismatch(policy.state_dict(), weights)
     if missing or unexpected or shapes:  # e.g. a hand-edited config, or weights from another architecture
         raise ValueError(f"{key}={str(ckpt)!r}: its weights do not fit the policy its stored config builds "
                          f"(missing {missing[:5]}, unexpected {unexpected[:5]}, other shape {shapes[:5]})")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from vitac.utils.checkpoint import load_checkpoint
+from vitac.utils.checkpoint import load_checkpoint, state_mismatch
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +58,8 @@ def load_weights(module, path: str, exclude: list) -> None:
     if FEATURE_INPUT in picked and picked[FEATURE_INPUT].shape[1] < own[FEATURE_INPUT].shape[1]:
         picked[FEATURE_INPUT] = _widen_feature_input(module.policy, picked[FEATURE_INPUT],
                                                      checkpoint["vitac_config"]["obs"]["modalities"], path)
-    mismatched = [k for k, v in picked.items() if k not in own or own[k].shape != v.shape]
+    _, unexpected, shapes = state_mismatch(own, picked)  # the tensors left out start fresh
+    mismatched = unexpected + shapes
     if mismatched:
         raise ValueError(f"init_ckpt={path!r} does not fit this policy: {mismatched[:5]} differ in name or shape")
     module.load_state_dict(picked, strict=False)
