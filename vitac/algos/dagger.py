@@ -23,6 +23,7 @@ from vitac.utils.checks import check_int, is_number, refuse
 
 LOSSES = ("mse", "nll")
 STUDENT_ACTIONS = ("mean", "sample")
+LR_SCHEDULES = ("fixed", "linear")
 
 
 class DAgger(RolloutAlgorithm):
@@ -36,6 +37,8 @@ class DAgger(RolloutAlgorithm):
         teacher: the trained policy whose mean actions are the labels (frozen, never in training mode).
         horizon, seq_len, minibatch_size, mini_epochs: rollout length, BPTT length and minibatching, as PPO's.
         lr, grad_norm: Adam's learning rate and the gradient-norm clip.
+        lr_schedule: "fixed" (lr throughout) or "linear": from lr at the first iteration towards 0 at the run's
+            last (`trainer.iterations`), so that the last checkpoints settle instead of swinging.
         loss: "mse" on the mean action, or "nll" (the teacher's mean under the student's Gaussian: the student's
             action noise is learned too).
         beta_start, beta_end, beta_iterations: the probability of executing the teacher's action instead of the
@@ -49,12 +52,13 @@ class DAgger(RolloutAlgorithm):
 
     def __init__(self, policy: VisuoTactilePolicy, envs, teacher: VisuoTactilePolicy, horizon: int = 64,
                  seq_len: int = 32, minibatch_size: int = 256, mini_epochs: int = 4, lr: float = 1e-3,
-                 grad_norm: float = 1.0, loss: str = "mse", beta_start: float = 1.0, beta_end: float = 0.0,
+                 lr_schedule: str = "fixed", grad_norm: float = 1.0, loss: str = "mse", beta_start: float = 1.0, beta_end: float = 0.0,
                  beta_iterations: int = 20, student_actions: str = "mean", seed: int = 0, rollout_threads: int = 1,
                  update_threads: int = 2, run_config: dict | None = None,
                  curriculum: RandomizationCurriculum | None = None):
         super().__init__(policy, envs, horizon, seq_len, seed, rollout_threads, update_threads, run_config, curriculum)
-        check_dagger(dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, grad_norm=grad_norm,
+        check_dagger(dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, lr_schedule=lr_schedule,
+                          grad_norm=grad_norm,
                           loss=loss, beta_start=beta_start, beta_end=beta_end, beta_iterations=beta_iterations,
                           student_actions=student_actions), horizon, envs.num_envs, seq_len)
         # Not a submodule: the teacher stays out of the student's checkpoints, optimizer and train/eval switches.
@@ -62,7 +66,8 @@ class DAgger(RolloutAlgorithm):
         missing = [k for k in teacher.input_keys if k not in envs.single_observation_space.spaces]
         if missing:
             raise ValueError(f"teacher_ckpt: the teacher reads {missing}, which the environments do not observe")
-        self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, grad_norm=grad_norm, loss=loss,
+        self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, lr_schedule=lr_schedule,
+                       grad_norm=grad_norm, loss=loss,
                        beta_start=beta_start, beta_end=beta_end, beta_iterations=beta_iterations,
                        student_actions=student_actions)
         self._teacher_state = None
@@ -73,6 +78,13 @@ class DAgger(RolloutAlgorithm):
 
     def configure_optimizers(self):
         return torch.optim.Adam([p for p in self.policy.parameters() if p.requires_grad], lr=self.hp["lr"])
+
+    @property
+    def learning_rate(self) -> float:
+        """Adam's rate for this iteration's update (a function of the iteration: a resumed run continues it)."""
+        if self.hp["lr_schedule"] == "fixed":
+            return self.hp["lr"]
+        return self.hp["lr"] * (1.0 - self.current_epoch / self.trainer.max_epochs)
 
     @property
     def beta(self) -> float:
@@ -129,6 +141,8 @@ class DAgger(RolloutAlgorithm):
     def update(self) -> dict:
         hp, policy = self.hp, self.policy
         optimizer = self.optimizers()
+        for group in optimizer.param_groups:
+            group["lr"] = self.learning_rate
         sums: dict[str, float] = {}
         count = 0
         for _ in range(hp["mini_epochs"]):
@@ -164,6 +178,8 @@ def check_dagger(hp: dict, horizon: int, num_envs: int, seq_len: int) -> None:
             refuse(f"algo.{name}", hp[name], "a number in [0, 1]")
     if hp["loss"] not in LOSSES:
         refuse("algo.loss", hp["loss"], f"one of {list(LOSSES)}")
+    if hp["lr_schedule"] not in LR_SCHEDULES:
+        refuse("algo.lr_schedule", hp["lr_schedule"], f"one of {list(LR_SCHEDULES)}")
     if hp["student_actions"] not in STUDENT_ACTIONS:
         refuse("algo.student_actions", hp["student_actions"], f"one of {list(STUDENT_ACTIONS)}")
     check_batch_layout(horizon, num_envs, seq_len, hp["minibatch_size"])
