@@ -156,6 +156,7 @@ def test_table_one_budget_is_the_distillation_recipe_stopped_at_450_iterations()
         assert cfg.algo == recipe.algo and cfg.envs == recipe.envs and cfg.teacher_ckpt == recipe.teacher_ckpt
         assert cfg.trainer.iterations * cfg.envs.num_envs * cfg.algo.horizon == 460_800
     assert compose_config(["preset=cpu_table1", "algo=ppo"]).algo.lr == compose_config(["algo=ppo"]).algo.lr
+    assert recipe.algo.lr == compose_config(["algo=dagger"]).algo.lr == 3e-4  # the rate of docs/results.md's rows
 
 
 EXPERIMENTS = sorted(str(p.relative_to(Path(CONF) / "experiment").with_suffix("")) for p in
