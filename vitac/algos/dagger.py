@@ -51,25 +51,21 @@ class DAgger(RolloutAlgorithm):
     needs_teacher = True  # train() loads `teacher_ckpt` and adds the teacher's observations to the environments'
 
     def __init__(self, policy: VisuoTactilePolicy, envs, teacher: VisuoTactilePolicy, horizon: int = 64,
-                 seq_len: int = 32, minibatch_size: int = 256, mini_epochs: int = 4, lr: float = 1e-3,
-                 lr_schedule: str = "fixed", grad_norm: float = 1.0, loss: str = "mse", beta_start: float = 1.0, beta_end: float = 0.0,
-                 beta_iterations: int = 20, student_actions: str = "mean", seed: int = 0, rollout_threads: int = 1,
-                 update_threads: int = 2, run_config: dict | None = None,
+                 seq_len: int = 32, minibatch_size: int = 256, mini_epochs: int = 4, lr: float = 3e-4,
+                 lr_schedule: str = "fixed", grad_norm: float = 1.0, loss: str = "mse", beta_start: float = 1.0,
+                 beta_end: float = 0.0, beta_iterations: int = 20, student_actions: str = "mean", seed: int = 0,
+                 rollout_threads: int = 1, update_threads: int = 2, run_config: dict | None = None,
                  curriculum: RandomizationCurriculum | None = None):
         super().__init__(policy, envs, horizon, seq_len, seed, rollout_threads, update_threads, run_config, curriculum)
-        check_dagger(dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, lr_schedule=lr_schedule,
-                          grad_norm=grad_norm,
-                          loss=loss, beta_start=beta_start, beta_end=beta_end, beta_iterations=beta_iterations,
-                          student_actions=student_actions), horizon, envs.num_envs, seq_len)
+        self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, lr_schedule=lr_schedule,
+                       grad_norm=grad_norm, loss=loss, beta_start=beta_start, beta_end=beta_end,
+                       beta_iterations=beta_iterations, student_actions=student_actions)
+        check_dagger(self.hp, horizon, envs.num_envs, seq_len)
         # Not a submodule: the teacher stays out of the student's checkpoints, optimizer and train/eval switches.
         self._teacher = (teacher.requires_grad_(False).eval(),)
         missing = [k for k in teacher.input_keys if k not in envs.single_observation_space.spaces]
         if missing:
             raise ValueError(f"teacher_ckpt: the teacher reads {missing}, which the environments do not observe")
-        self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, lr_schedule=lr_schedule,
-                       grad_norm=grad_norm, loss=loss,
-                       beta_start=beta_start, beta_end=beta_end, beta_iterations=beta_iterations,
-                       student_actions=student_actions)
         self._teacher_state = None
 
     @property
