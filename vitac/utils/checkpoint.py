@@ -3,6 +3,7 @@ is refused with a message, as is one whose records fail their checksums."""
 
 from __future__ import annotations
 
+import io
 import os
 import pickle
 import tempfile
@@ -33,10 +34,11 @@ def _numpy_globals() -> list:
     return [np.ndarray, np.dtype, multiarray._reconstruct, multiarray.scalar, *dtypes]
 
 
-def check_records(path: str | Path) -> None:
-    """Raise `zipfile.BadZipFile` unless every record of the checkpoint archive matches its stored CRC-32. torch
-    does not check them when it loads: a flipped bit in a tensor would load silently as other weights."""
-    with zipfile.ZipFile(path) as archive:
+def check_records(archive_file) -> None:
+    """Raise `zipfile.BadZipFile` unless every record of the checkpoint archive (a path or a binary file) matches
+    its stored CRC-32. torch does not check them when it loads: a flipped bit in a tensor would load silently as
+    other weights."""
+    with zipfile.ZipFile(archive_file) as archive:
         for record in archive.infolist():
             if record.CRC:  # 0: written with torch's CRC option off, nothing to check against
                 archive.read(record)  # zipfile raises on a mismatch
@@ -46,9 +48,11 @@ def safe_load(path: str | Path) -> dict:
     """torch's weights-only unpickler, which also admits numpy arrays and scalars (a training checkpoint's
     environment and RNG states): tensors, containers and numbers only, never code; a checkpoint whose records
     fail their checksums is refused first (`check_records`)."""
-    check_records(path)
+    data = io.BytesIO(Path(path).read_bytes())  # read once: the bytes checked are the bytes loaded
+    check_records(data)
+    data.seek(0)
     with torch.serialization.safe_globals(_numpy_globals()):
-        return torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(data, map_location="cpu", weights_only=True)
 
 
 def load_checkpoint(path: str | Path, key: str = "ckpt") -> dict:
