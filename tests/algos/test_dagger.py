@@ -144,25 +144,21 @@ def test_bad_dagger_values_are_refused_naming_the_key():
 
 def test_a_linear_learning_rate_falls_from_lr_towards_0_at_the_last_iteration(tmp_path):
     from tests.conftest import compose_config as compose
+    from vitac.run_dirs import read_metrics
     from vitac.train import train
+
+    def rates(run_dir):
+        return [float(r["charts/lr"]) for r in read_metrics(run_dir) if r.get("charts/lr")]
 
     job = ["preset=smoke", "experiment=table1/tactile", "algo=dagger", "algo.lr=4e-4", "algo.lr_schedule=linear",
            "trainer.iterations=4", "logger=csv"]
-    run = train(compose(job, output_dir=tmp_path / "run"))
-    rates = [float(r["charts/lr"]) for r in _rows(run) if r.get("charts/lr")]
-    assert rates == pytest.approx([4e-4, 3e-4, 2e-4, 1e-4])
+    train(compose(job, output_dir=tmp_path / "run"))
+    assert rates(tmp_path / "run") == pytest.approx([4e-4, 3e-4, 2e-4, 1e-4])
     # Continued to 6 iterations (`resume=`): the rate is a function of the iteration and the run's length, so
     # the continuation follows the longer run's line.
-    more = train(compose(job[:-2] + ["trainer.iterations=6", "logger=csv", f"resume={tmp_path / 'run'}"],
-                         output_dir=tmp_path / "more"))
-    assert [float(r["charts/lr"]) for r in _rows(more) if r.get("charts/lr")][-2:] == pytest.approx([4e-4 / 3, 2e-4 / 3])
-
-
-def _rows(run: dict) -> list[dict]:
-    import csv
-
-    with open(run["metrics_csv"]) as f:
-        return list(csv.DictReader(f))
+    train(compose(job[:-2] + ["trainer.iterations=6", "logger=csv", f"resume={tmp_path / 'run'}"],
+                  output_dir=tmp_path / "more"))
+    assert rates(tmp_path / "more")[-2:] == pytest.approx([4e-4 / 3, 2e-4 / 3])
 
 
 @pytest.mark.slow
