@@ -1,6 +1,6 @@
 """The fault-injection campaign: each fault of tests/test_faults.py injected many times at random points, with a
 fast subset in the default run. docs/reliability.md records what it injects, how often, and what survives:
-`python -m pytest -m slow tests/test_fault_campaign.py` (about 15 minutes on 2 cores)."""
+`python -m pytest -m slow -s tests/test_fault_campaign.py`."""
 
 from __future__ import annotations
 
