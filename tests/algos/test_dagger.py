@@ -10,6 +10,7 @@ import torch
 
 from tests.algos.test_recurrent_ppo import FakeVectorEnv
 from tests.conftest import compose_config
+from vitac.algos.buffer import RolloutBuffer, SequenceStore
 from vitac.algos.dagger import DAgger
 from vitac.envs.vector_env import TaskVectorEnv
 from vitac.run_config import build_policy_from_config, task_settings
@@ -176,3 +177,71 @@ def test_a_student_with_the_teachers_observations_learns_to_insert(tmp_path):
     assert np.mean([float(r["losses/action_mse"]) for r in last]) < 0.05
     success = [float(r["charts/success_rate"]) for r in last if r["charts/success_rate"] != "nan"]
     assert np.mean(success) >= 0.6, success
+
+
+def _rollout_buffer(horizon, num_envs, seq_len, tag):
+    """A filled RolloutBuffer whose every value names its rollout, step and env: obs proprio[..., 0] = tag,
+    [..., 1] = t, [..., 2] = env; labels and chunk states are functions of the same."""
+    buf = RolloutBuffer(horizon, num_envs, seq_len)
+    buf.allocate({"proprio": torch.zeros(1, 3), "wrist": torch.zeros(1, 2, 2, dtype=torch.uint8)}, 6)
+    t, env = torch.meshgrid(torch.arange(horizon), torch.arange(num_envs), indexing="ij")
+    buf.obs["proprio"] = torch.stack([torch.full_like(t, tag), t, env], -1).float()
+    buf.obs["wrist"] = (t * 7 + env + tag)[..., None, None].expand(-1, -1, 2, 2).to(torch.uint8)
+    buf.starts = ((t + env) % 5 == 0).float()
+    buf.labels = (100 * tag + 10 * t + env)[..., None].float().expand(-1, -1, 6).clone()
+    buf.chunk_states = [tuple(torch.full((2, num_envs, 4), 0.0) + 1000 * tag + c * seq_len + 0.5 * k
+                              + torch.arange(num_envs)[None, :, None] for k in (0, 1)) for c in range(horizon // seq_len)]
+    return buf
+
+
+def test_one_rollout_kept_gives_the_rollout_buffers_own_minibatches():
+    buf = _rollout_buffer(8, 3, 4, tag=0)
+    store = SequenceStore(1)
+    store.add(buf)
+    g_buffer, g_store = torch.Generator().manual_seed(5), torch.Generator().manual_seed(5)
+    for _ in range(2):  # two passes, as mini_epochs=2 draws them
+        plain = list(buf.minibatches(8, g_buffer, fields=("labels",)))
+        kept = list(store.minibatches(8, g_store, count=24))
+        assert len(plain) == len(kept) == 3
+        for a, b in zip(plain, kept, strict=True):
+            for x, y in zip(torch.utils._pytree.tree_leaves(a), torch.utils._pytree.tree_leaves(b), strict=True):
+                assert torch.equal(x, y)
+
+
+def test_the_dataset_keeps_the_last_rollouts_and_every_sequence_stays_whole():
+    store = SequenceStore(2)
+    for tag in range(3):  # the first rollout is dropped when the third comes
+        store.add(_rollout_buffer(8, 3, 4, tag=tag))
+    drawn = list(store.minibatches(8, torch.Generator().manual_seed(0), count=24))
+    assert [mb["labels"].shape[:2] for mb in drawn] == [(4, 2)] * 3  # one rollout's worth: 6 chunks of 4 steps
+    tags = set()
+    for mb in drawn:
+        tag, t, env = mb["obs"]["proprio"].unbind(-1)  # (L, B) each
+        tags |= set(tag.flatten().tolist())
+        assert torch.equal(t, t[:1] + torch.arange(4.0)[:, None]) and (t[0] % 4 == 0).all()  # consecutive chunks
+        assert (tag == tag[:1]).all() and (env == env[:1]).all()
+        assert torch.equal(mb["labels"][..., 0], 100 * tag + 10 * t + env)
+        assert torch.equal(mb["obs"]["wrist"][..., 0, 0], (t * 7 + env + tag).to(torch.uint8))
+        assert torch.equal(mb["starts"], ((t + env) % 5 == 0).float())
+        h, c = mb["state"]  # (layers, B, H): the state stored at each chunk's first step
+        assert torch.equal(h[0, :, 0], 1000 * tag[0] + t[0] + env[0]) and torch.equal(c - h, torch.full_like(h, 0.5))
+    assert tags == {1.0, 2.0}  # drawn from both rollouts kept, never from the dropped one
+
+
+def test_an_aggregated_dataset_resumes_exactly(tmp_path):
+    """The kept rollouts travel in checkpoints: a run killed after iteration 2 and resumed trains iteration 3 on
+    the same two rollouts as the uninterrupted run."""
+    from vitac.run_dirs import read_metrics
+    from vitac.train import train
+
+    def losses(run_dir):
+        return {r["epoch"]: (float(r["losses/distill_loss"]), r["charts/reward_per_step"])
+                for r in read_metrics(run_dir) if r.get("losses/distill_loss")}
+
+    job = ["preset=smoke", "experiment=table1/tactile", "algo=dagger", "algo.dataset_rollouts=2", "logger=csv"]
+    train(compose_config(job + ["trainer.iterations=3"], output_dir=tmp_path / "full"))
+    train(compose_config(job + ["trainer.iterations=2"], output_dir=tmp_path / "part"))
+    train(compose_config(job + ["trainer.iterations=3", f"resume={tmp_path / 'part'}"], output_dir=tmp_path / "more"))
+    full, more = losses(tmp_path / "full"), losses(tmp_path / "more")
+    assert list(more) == ["2"] and more["2"][1] == full["2"][1]  # the same rollout
+    assert more["2"][0] == pytest.approx(full["2"][0], rel=1e-4)  # and the same data: CPU kernels to ~1e-6

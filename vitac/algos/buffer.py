@@ -56,3 +56,54 @@ class RolloutBuffer:
             c = torch.stack([self.chunk_states[c][1][:, e] for c, e in pairs], 1)
             yield dict(obs={k: v[index] for k, v in self.obs.items()}, starts=self.starts[index], state=(h, c),
                        **{name: getattr(self, name)[index] for name in fields})
+
+
+
+class SequenceStore:
+    """The seq_len chunks of the last `capacity` rollouts, for DAgger's aggregated dataset (Ross et al.'s DAgger
+    trains on every state visited so far; a few rollouts keep memory bounded): observations, episode starts,
+    the recurrent state at each chunk's start and per-step fields, as (R, T, N, ...) tensors filled as a ring."""
+
+    def __init__(self, capacity: int, fields=("labels",)):
+        self.capacity, self.fields = capacity, tuple(fields)
+        self.obs: dict[str, torch.Tensor] = {}
+        self.steps: dict[str, torch.Tensor] = {}  # starts, the named fields, and h / c at each chunk's start
+        self.filled, self.next_slot = 0, 0
+
+    def add(self, buffer: RolloutBuffer) -> None:
+        """Copy the rollout in `buffer` over the oldest one kept."""
+        steps = dict(starts=buffer.starts, h=torch.stack([s[0] for s in buffer.chunk_states]),  # (chunks, layers,
+                     c=torch.stack([s[1] for s in buffer.chunk_states]),                        # N, H)
+                     **{name: getattr(buffer, name) for name in self.fields})
+        if not self.obs:
+            empty = lambda v: torch.zeros((self.capacity, *v.shape), dtype=v.dtype)  # noqa: E731
+            self.obs = {k: empty(v) for k, v in buffer.obs.items()}
+            self.steps = {k: empty(v) for k, v in steps.items()}
+        for kept, new in ((self.obs, buffer.obs), (self.steps, steps)):
+            for k, v in new.items():
+                kept[k][self.next_slot] = v
+        self.next_slot = (self.next_slot + 1) % self.capacity
+        self.filled = min(self.filled + 1, self.capacity)
+
+    def minibatches(self, minibatch_size: int, generator: torch.Generator, count: int):
+        """Yield dicts of (L, B, ...) tensors as RolloutBuffer.minibatches does, from `count` steps' worth of
+        chunks drawn without replacement from every rollout kept. With one rollout kept and `count` its size,
+        the chunks and their order are RolloutBuffer.minibatches' own."""
+        _, horizon, n = self.steps["starts"].shape
+        L = horizon // self.steps["h"].shape[1]
+        per_rollout = horizon // L * n
+        order = torch.randperm(self.filled * per_rollout, generator=generator)[:count // L]
+        for ids in order.split(minibatch_size // L):
+            rollout, chunk, env = ids // per_rollout, ids % per_rollout // n, ids % n
+            index = (rollout[None, :].expand(L, -1), chunk[None, :] * L + torch.arange(L)[:, None],
+                     env[None, :].expand(L, -1))  # (L, B) rollout, time, env
+            state = tuple(self.steps[k][rollout, chunk, :, env].transpose(0, 1) for k in ("h", "c"))  # (layers, B, H)
+            yield dict(obs={k: v[index] for k, v in self.obs.items()}, starts=self.steps["starts"][index],
+                       state=state, **{name: self.steps[name][index] for name in self.fields})
+
+    def state_dict(self) -> dict:
+        return dict(capacity=self.capacity, obs=self.obs, steps=self.steps, filled=self.filled, next_slot=self.next_slot)
+
+    def load_state_dict(self, state: dict) -> None:
+        self.obs, self.steps = state["obs"], state["steps"]
+        self.filled, self.next_slot = state["filled"], state["next_slot"]

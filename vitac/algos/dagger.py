@@ -6,7 +6,8 @@ run with its own observations, its own frozen normalizer statistics and its own 
 advances along the trajectory actually taken and resets where episodes restart. The student trains by
 truncated back-propagation over the stored sequences with the stored recurrent state, as PPO does. The
 dataset is the current rollout only (rsl_rl's choice): memory stays one rollout, and the labels of states
-the student reaches late in training are the ones it learns from.
+the student reaches late in training are the ones it learns from. `dataset_rollouts` > 1 keeps the last few
+rollouts instead, as DAgger proper aggregates its dataset, at the same number of gradient steps.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import torch
 from lightning.pytorch.utilities import move_data_to_device
 
 from vitac.algos import losses
-from vitac.algos.buffer import check_batch_layout
+from vitac.algos.buffer import SequenceStore, check_batch_layout
 from vitac.algos.curriculum import RandomizationCurriculum
 from vitac.algos.rollout import RolloutAlgorithm
 from vitac.models.policy import VisuoTactilePolicy
@@ -45,6 +46,9 @@ class DAgger(RolloutAlgorithm):
             student's, per environment and step, moved linearly from beta_start to beta_end over beta_iterations
             iterations (beta_start = beta_end = 0: the student always acts).
         student_actions: "mean" (the deterministic student, as it is evaluated) or "sample" (with its noise).
+        dataset_rollouts: how many of the latest rollouts each update draws its sequences from (1: the current
+            one only). Every update takes mini_epochs rollouts' worth of sequences, so its cost stays the same;
+            the kept rollouts travel in checkpoints (exact resume), about 38 MB each for a camera + tactile student.
         seed, rollout_threads, update_threads, run_config, curriculum: the rollout loop's.
     """
 
@@ -53,13 +57,14 @@ class DAgger(RolloutAlgorithm):
     def __init__(self, policy: VisuoTactilePolicy, envs, teacher: VisuoTactilePolicy, horizon: int = 64,
                  seq_len: int = 32, minibatch_size: int = 256, mini_epochs: int = 4, lr: float = 3e-4,
                  lr_schedule: str = "fixed", grad_norm: float = 1.0, loss: str = "mse", beta_start: float = 1.0,
-                 beta_end: float = 0.0, beta_iterations: int = 20, student_actions: str = "mean", seed: int = 0,
-                 rollout_threads: int = 1, update_threads: int = 2, run_config: dict | None = None,
-                 curriculum: RandomizationCurriculum | None = None):
+                 beta_end: float = 0.0, beta_iterations: int = 20, student_actions: str = "mean",
+                 dataset_rollouts: int = 1, seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
+                 run_config: dict | None = None, curriculum: RandomizationCurriculum | None = None):
         super().__init__(policy, envs, horizon, seq_len, seed, rollout_threads, update_threads, run_config, curriculum)
         self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, lr_schedule=lr_schedule,
                        grad_norm=grad_norm, loss=loss, beta_start=beta_start, beta_end=beta_end,
-                       beta_iterations=beta_iterations, student_actions=student_actions)
+                       beta_iterations=beta_iterations, student_actions=student_actions,
+                       dataset_rollouts=dataset_rollouts)
         check_dagger(self.hp, horizon, envs.num_envs, seq_len)
         # Not a submodule: the teacher stays out of the student's checkpoints, optimizer and train/eval switches.
         self._teacher = (teacher.requires_grad_(False).eval(),)
@@ -67,6 +72,7 @@ class DAgger(RolloutAlgorithm):
         if missing:
             raise ValueError(f"teacher_ckpt: the teacher reads {missing}, which the environments do not observe")
         self._teacher_state = None
+        self.dataset = SequenceStore(dataset_rollouts)
 
     @property
     def teacher(self) -> VisuoTactilePolicy:
@@ -96,10 +102,16 @@ class DAgger(RolloutAlgorithm):
             self._teacher_state = self.teacher.initial_state(self.envs.num_envs, self.device)
 
     def extra_state(self) -> dict:
-        return dict(teacher_state=tuple(s.cpu() for s in self._teacher_state))
+        state = dict(teacher_state=tuple(s.cpu() for s in self._teacher_state))
+        if self.dataset.capacity > 1:  # one rollout kept is this iteration's, which the next one replaces
+            state["dataset"] = self.dataset.state_dict()
+        return state
 
     def load_extra_state(self, state: dict) -> None:
         self._teacher_state = tuple(s.to(self.device) for s in state["teacher_state"])
+        saved = state.get("dataset")
+        if saved is not None and self.dataset.capacity == saved["capacity"]:  # else (a changed dataset_rollouts)
+            self.dataset.load_state_dict(saved)                                # the dataset starts afresh
 
     def act(self, t, obs, mean, log_std, value):
         buf = self.buffer
@@ -141,8 +153,10 @@ class DAgger(RolloutAlgorithm):
             group["lr"] = self.learning_rate
         sums: dict[str, float] = {}
         count = 0
+        self.dataset.add(self.buffer)
+        rollout_steps = self.horizon * self.envs.num_envs
         for _ in range(hp["mini_epochs"]):
-            for mb in self.buffer.minibatches(hp["minibatch_size"], self.generator, fields=("labels",)):
+            for mb in self.dataset.minibatches(hp["minibatch_size"], self.generator, rollout_steps):
                 terms = self.minibatch_losses(move_data_to_device(mb, self.device))
                 optimizer.zero_grad()
                 self.manual_backward(terms["loss"])
@@ -164,7 +178,7 @@ class DAgger(RolloutAlgorithm):
 
 def check_dagger(hp: dict, horizon: int, num_envs: int, seq_len: int) -> None:
     """Refuse an out-of-range value of conf/algo/dagger.yaml, with its key."""
-    for name in ("mini_epochs", "beta_iterations"):
+    for name in ("mini_epochs", "beta_iterations", "dataset_rollouts"):
         check_int(f"algo.{name}", hp[name], 0 if name == "beta_iterations" else 1)
     for name in ("lr", "grad_norm"):
         if not is_number(hp[name]) or not hp[name] > 0:
