@@ -137,7 +137,8 @@ def test_bad_dagger_values_are_refused_naming_the_key():
     for kwargs, pattern in ((dict(loss="l1"), r"algo\.loss='l1' is not allowed"),
                             (dict(beta_start=1.5), r"algo\.beta_start=1\.5 is not allowed"),
                             (dict(student_actions="noisy"), r"algo\.student_actions='noisy'"),
-                            (dict(lr_schedule="cosine"), r"algo\.lr_schedule='cosine' is not allowed")):
+                            (dict(lr_schedule="cosine"), r"algo\.lr_schedule='cosine' is not allowed"),
+                            (dict(dataset_rollouts=0), r"algo\.dataset_rollouts=0 is not allowed")):
         with pytest.raises(ValueError, match=pattern):
             DAgger(_policy(["experiment=table1/privileged"]), envs, _FunctionTeacher(), horizon=8, seq_len=4,
                    minibatch_size=8, **kwargs)
