@@ -246,3 +246,9 @@ def test_an_aggregated_dataset_resumes_exactly(tmp_path):
     full, more = losses(tmp_path / "full"), losses(tmp_path / "more")
     assert list(more) == ["2"] and more["2"][1] == full["2"][1]  # the same rollout
     assert more["2"][0] == pytest.approx(full["2"][0], rel=1e-4)  # and the same data: CPU kernels to ~1e-6
+    # Only last.ckpt carries them: periodic checkpoints are for evaluation and stay small.
+    from vitac.utils.checkpoint import load_checkpoint
+
+    checkpoints = tmp_path / "full" / "checkpoints"
+    assert load_checkpoint(checkpoints / "last.ckpt")["vitac"]["dataset"]["filled"] == 2
+    assert "dataset" not in load_checkpoint(checkpoints / "iter_00003.ckpt")["vitac"]

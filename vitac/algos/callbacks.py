@@ -83,6 +83,17 @@ class BestEvaluation(ModelCheckpoint):
             super()._save_topk_checkpoint(trainer, monitor_candidates)
 
 
+def save_resume_point(trainer, path) -> None:
+    """The full state as `path` (last.ckpt), with what only an exact resume needs (the algorithm's
+    `resume_state`, e.g. DAgger's kept rollouts): periodic and best checkpoints stay small."""
+    module = trainer.lightning_module
+    module.saving_resume_point = True
+    try:
+        trainer.save_checkpoint(path, weights_only=False)
+    finally:
+        module.saving_resume_point = False
+
+
 class LastCheckpoint(L.Callback):
     """`path` (last.ckpt) after every iteration, so that a SIGKILL or a crash loses at most the iteration in
     progress (about 14 MB written through a temporary file, ~1% of a privileged iteration). On SIGTERM (a SLURM
@@ -112,7 +123,7 @@ class LastCheckpoint(L.Callback):
             self._previous_sigint = None
 
     def on_train_epoch_end(self, trainer, module):
-        trainer.save_checkpoint(self.path, weights_only=False)  # the full state: exact resume
+        save_resume_point(trainer, self.path)
 
     def on_train_end(self, trainer, module):
         self._restore()
@@ -120,7 +131,7 @@ class LastCheckpoint(L.Callback):
     def on_exception(self, trainer, module, exception):
         self._restore()
         if isinstance(exception, SIGTERMException):  # raised between iterations only
-            trainer.save_checkpoint(self.path, weights_only=False)  # the full state: exact resume
+            save_resume_point(trainer, self.path)
             print(f"\nvitac: stopped by {self.signal_name} after {module.env_steps} env steps; saved to {self.path}",
                   flush=True)
 
@@ -137,7 +148,7 @@ class NonFiniteGuard(L.Callback):
         skipped = float(trainer.callback_metrics.get("losses/skipped_updates", 0.0))
         self.streak = self.streak + 1 if skipped > 0 else 0
         if self.streak >= self.limit:
-            trainer.save_checkpoint(self.path, weights_only=False)  # the full state: exact resume
+            save_resume_point(trainer, self.path)
             raise RuntimeError(
                 f"vitac: {self.streak} iterations in a row had non-finite gradients (trainer.max_nonfinite_iterations="
                 f"{self.limit}); stopped after {module.env_steps} env steps and saved {self.path}. A learning rate too "

@@ -48,7 +48,7 @@ class DAgger(RolloutAlgorithm):
         student_actions: "mean" (the deterministic student, as it is evaluated) or "sample" (with its noise).
         dataset_rollouts: how many of the latest rollouts each update draws its sequences from (1: the current
             one only). Every update takes mini_epochs rollouts' worth of sequences, so its cost stays the same;
-            the kept rollouts travel in checkpoints (exact resume), about 38 MB each for a camera + tactile student.
+            the kept rollouts travel in last.ckpt (exact resume), about 38 MB each for a camera + tactile student.
         seed, rollout_threads, update_threads, run_config, curriculum: the rollout loop's.
     """
 
@@ -102,10 +102,11 @@ class DAgger(RolloutAlgorithm):
             self._teacher_state = self.teacher.initial_state(self.envs.num_envs, self.device)
 
     def extra_state(self) -> dict:
-        state = dict(teacher_state=tuple(s.cpu() for s in self._teacher_state))
-        if self.dataset.capacity > 1:  # one rollout kept is this iteration's, which the next one replaces
-            state["dataset"] = self.dataset.state_dict()
-        return state
+        return dict(teacher_state=tuple(s.cpu() for s in self._teacher_state))
+
+    def resume_state(self) -> dict:
+        # One rollout kept is this iteration's, which the next one replaces: nothing to carry.
+        return dict(dataset=self.dataset.state_dict()) if self.dataset.capacity > 1 else {}
 
     def load_extra_state(self, state: dict) -> None:
         self._teacher_state = tuple(s.to(self.device) for s in state["teacher_state"])

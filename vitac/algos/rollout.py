@@ -71,6 +71,7 @@ class RolloutAlgorithm(L.LightningModule):
         self.env_steps = 0
         self._obs = None  # current observation (numpy dict), LSTM state and episode-start flags
         self._restored = None
+        self.saving_resume_point = False  # set while last.ckpt is written (callbacks.save_resume_point)
 
     # ------------------------------------------------------------------------------- what an algorithm adds
     def act(self, t: int, obs: dict, mean: torch.Tensor, log_std: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
@@ -91,6 +92,11 @@ class RolloutAlgorithm(L.LightningModule):
 
     def extra_state(self) -> dict:
         """Algorithm state beyond the loop's, for exact resume (saved with the environments)."""
+        return {}
+
+    def resume_state(self) -> dict:
+        """Bulky algorithm state only an exact resume needs: saved in last.ckpt alone (`saving_resume_point`),
+        restored through `load_extra_state` with the rest."""
         return {}
 
     def load_extra_state(self, state: dict) -> None:
@@ -128,7 +134,7 @@ class RolloutAlgorithm(L.LightningModule):
                                    starts=self._starts,
                                    env_steps=self.env_steps, generator=self.generator.get_state(),
                                    curriculum=self.curriculum.state_dict() if self.curriculum else None,
-                                   **self.extra_state())
+                                   **self.extra_state(), **(self.resume_state() if self.saving_resume_point else {}))
 
     def on_load_checkpoint(self, checkpoint):
         self._restored = checkpoint.get("vitac")
