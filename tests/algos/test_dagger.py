@@ -205,7 +205,8 @@ def test_one_rollout_kept_gives_the_rollout_buffers_own_minibatches():
         kept = list(store.minibatches(8, g_store, count=24))
         assert len(plain) == len(kept) == 3
         for a, b in zip(plain, kept, strict=True):
-            for x, y in zip(torch.utils._pytree.tree_leaves(a), torch.utils._pytree.tree_leaves(b), strict=True):
+            pairs = [(a["obs"][k], b["obs"][k]) for k in a["obs"]] + list(zip(a["state"], b["state"], strict=True))
+            for x, y in pairs + [(a["starts"], b["starts"]), (a["labels"], b["labels"])]:
                 assert torch.equal(x, y)
 
 
