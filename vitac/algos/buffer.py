@@ -34,6 +34,12 @@ class RolloutBuffer:
         self.starts, self.ends, self.next_values = torch.zeros(t, n), torch.zeros(t, n), torch.zeros(t, n)
         self.chunk_states = [None] * (t // self.seq_len)
 
+    def chunk_tensors(self, fields) -> tuple[dict, dict]:
+        """The observations and the per-step tensors minibatches draw from: episode starts, the named `fields`,
+        and h / c, the recurrent state at each chunk's start as (chunks, layers, N, H)."""
+        h, c = (torch.stack([s[k] for s in self.chunk_states]) for k in (0, 1))
+        return self.obs, dict(starts=self.starts, h=h, c=c, **{name: getattr(self, name) for name in fields})
+
     def minibatches(self, minibatch_size: int, generator: torch.Generator,
                     fields=("actions", "log_probs", "values", "advantages", "returns")):
         """Yield dicts of (L, B, ...) tensors, B = minibatch_size / L chunks of L consecutive steps of one env:
@@ -42,21 +48,26 @@ class RolloutBuffer:
 
         Every (t, env) appears exactly once per call; chunk order is shuffled by `generator`.
         """
-        L, n = self.seq_len, self.num_envs
-        chunks_per_env = self.horizon // L
-        total = chunks_per_env * n
-        per_batch = minibatch_size // L
-        order = torch.randperm(total, generator=generator)
-        for start in range(0, total, per_batch):
-            ids = order[start:start + per_batch]
-            chunk, env = ids // n, ids % n
-            index = (chunk[None, :] * L + torch.arange(L)[:, None], env[None, :].expand(L, -1))  # (L, B) time, env
-            pairs = list(zip(chunk.tolist(), env.tolist(), strict=True))
-            h = torch.stack([self.chunk_states[c][0][:, e] for c, e in pairs], 1)
-            c = torch.stack([self.chunk_states[c][1][:, e] for c, e in pairs], 1)
-            yield dict(obs={k: v[index] for k, v in self.obs.items()}, starts=self.starts[index], state=(h, c),
-                       **{name: getattr(self, name)[index] for name in fields})
+        obs, steps = self.chunk_tensors(fields)
+        order = torch.randperm(self.horizon // self.seq_len * self.num_envs, generator=generator)
+        yield from chunk_minibatches({k: v[None] for k, v in obs.items()}, {k: v[None] for k, v in steps.items()},
+                                     fields, order, minibatch_size // self.seq_len)
 
+
+def chunk_minibatches(obs: dict, steps: dict, fields, order: torch.Tensor, per_batch: int):
+    """Minibatches of `per_batch` whole chunks each, in `order`, from (R, T, N, ...) tensors of R rollouts
+    (`steps` as RolloutBuffer.chunk_tensors gives them, with the leading R): chunk id r * T / L * N + chunk * N +
+    env, for chunks of L = T / (chunks per rollout) steps."""
+    _, horizon, n = steps["starts"].shape
+    L = horizon // steps["h"].shape[1]
+    per_rollout = horizon // L * n
+    for ids in order.split(per_batch):
+        rollout, chunk, env = ids // per_rollout, ids % per_rollout // n, ids % n
+        index = (rollout[None, :].expand(L, -1), chunk[None, :] * L + torch.arange(L)[:, None],
+                 env[None, :].expand(L, -1))  # (L, B) rollout, time, env
+        state = tuple(steps[k][rollout, chunk, :, env].transpose(0, 1) for k in ("h", "c"))  # (layers, B, H)
+        yield dict(obs={k: v[index] for k, v in obs.items()}, starts=steps["starts"][index], state=state,
+                   **{name: steps[name][index] for name in fields})
 
 
 class SequenceStore:
@@ -72,14 +83,12 @@ class SequenceStore:
 
     def add(self, buffer: RolloutBuffer) -> None:
         """Copy the rollout in `buffer` over the oldest one kept."""
-        steps = dict(starts=buffer.starts, h=torch.stack([s[0] for s in buffer.chunk_states]),  # (chunks, layers,
-                     c=torch.stack([s[1] for s in buffer.chunk_states]),                        # N, H)
-                     **{name: getattr(buffer, name) for name in self.fields})
+        obs, steps = buffer.chunk_tensors(self.fields)
         if not self.obs:
             empty = lambda v: torch.zeros((self.capacity, *v.shape), dtype=v.dtype)  # noqa: E731
-            self.obs = {k: empty(v) for k, v in buffer.obs.items()}
+            self.obs = {k: empty(v) for k, v in obs.items()}
             self.steps = {k: empty(v) for k, v in steps.items()}
-        for kept, new in ((self.obs, buffer.obs), (self.steps, steps)):
+        for kept, new in ((self.obs, obs), (self.steps, steps)):
             for k, v in new.items():
                 kept[k][self.next_slot] = v
         self.next_slot = (self.next_slot + 1) % self.capacity
@@ -89,17 +98,10 @@ class SequenceStore:
         """Yield dicts of (L, B, ...) tensors as RolloutBuffer.minibatches does, from `count` steps' worth of
         chunks drawn without replacement from every rollout kept. With one rollout kept and `count` its size,
         the chunks and their order are RolloutBuffer.minibatches' own."""
-        _, horizon, n = self.steps["starts"].shape
-        L = horizon // self.steps["h"].shape[1]
-        per_rollout = horizon // L * n
-        order = torch.randperm(self.filled * per_rollout, generator=generator)[:count // L]
-        for ids in order.split(minibatch_size // L):
-            rollout, chunk, env = ids // per_rollout, ids % per_rollout // n, ids % n
-            index = (rollout[None, :].expand(L, -1), chunk[None, :] * L + torch.arange(L)[:, None],
-                     env[None, :].expand(L, -1))  # (L, B) rollout, time, env
-            state = tuple(self.steps[k][rollout, chunk, :, env].transpose(0, 1) for k in ("h", "c"))  # (layers, B, H)
-            yield dict(obs={k: v[index] for k, v in self.obs.items()}, starts=self.steps["starts"][index],
-                       state=state, **{name: self.steps[name][index] for name in self.fields})
+        L = self.steps["starts"].shape[1] // self.steps["h"].shape[1]
+        order = torch.randperm(self.filled * self.steps["h"].shape[1] * self.steps["starts"].shape[2],
+                               generator=generator)[:count // L]
+        yield from chunk_minibatches(self.obs, self.steps, self.fields, order, minibatch_size // L)
 
     def state_dict(self) -> dict:
         return dict(capacity=self.capacity, obs=self.obs, steps=self.steps, filled=self.filled, next_slot=self.next_slot)
