@@ -1,0 +1,228 @@
+"""The command-line tools around training: benchmark records, plots, run summaries, paired outcomes."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import CONF
+from vitac.envs.gym_env import TaskEnv
+from vitac.utils.records import describe_cpu, write_json, write_record
+
+ROOT = Path(CONF).parent
+
+
+def _benchmark(name: str):
+    """A script of benchmarks/ as a module (benchmarks/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_benchmark_records_carry_the_command_that_reproduces_them(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["/somewhere/benchmarks/bench_train.py", "--only", "privileged", "algo.lr=1e-5"])
+    monkeypatch.setattr("vitac.utils.records.describe_cpu", lambda: {"model": "some CPU", "cores": 2, "bfloat16": []})
+    write_record(tmp_path / "new" / "record.json", rows=[{"env_steps_per_s": 1.0}], threads=2)
+    assert json.loads((tmp_path / "new" / "record.json").read_text()) == {
+        "rows": [{"env_steps_per_s": 1.0}], "threads": 2,
+        "command": "python benchmarks/bench_train.py --only privileged algo.lr=1e-5",
+        "cpu": {"model": "some CPU", "cores": 2, "bfloat16": []}}
+
+
+def test_records_name_the_cpu_they_were_measured_on(tmp_path):
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text("processor\t: 0\nmodel name\t: Intel(R) Xeon(R) Processor\n"
+                       "flags\t\t: fpu avx512f avx512_bf16 amx_tile amx_bf16\n\nprocessor\t: 1\n")
+    cpu = describe_cpu(cpuinfo)
+    assert cpu["model"] == "Intel(R) Xeon(R) Processor" and cpu["bfloat16"] == ["amx_bf16", "avx512_bf16"]
+    assert cpu["cores"] == len(os.sched_getaffinity(0))
+    assert describe_cpu(tmp_path / "missing")["bfloat16"] == []  # no /proc/cpuinfo: still a record
+
+
+def test_a_json_record_replaces_its_file_only_once_written_whole(tmp_path, monkeypatch):
+    target = tmp_path / "last.eval.json"
+    write_json(target, {"success_rate": 0.5})
+    assert json.loads(target.read_text()) == {"success_rate": 0.5}
+
+    def crash(src, dst):  # the process dies after writing the new report, before it takes the old one's place
+        raise OSError("killed")
+
+    monkeypatch.setattr(os, "replace", crash)
+    with pytest.raises(OSError, match="killed"):
+        write_json(target, {"success_rate": 0.9, "final_peg": [{"outcome": "inserted"}] * 1000})
+    assert json.loads(target.read_text()) == {"success_rate": 0.5}  # the previous report, whole
+    assert [p.name for p in tmp_path.iterdir()] == ["last.eval.json"]  # and no temporary file left behind
+
+
+def test_bench_physics_meter_counts_every_substep_and_restores_the_methods_it_patches():
+    from vitac.tasks.insertion.task import InsertionTask
+
+    bench = _benchmark("bench_physics")
+    original_step, original_forces = InsertionTask.step_physics, InsertionTask._contact_forces
+    env = TaskEnv({"observations": bench.OBSERVATIONS}, seed=0)
+    env.reset(seed=0)
+    meter = bench.PhysicsMeter()
+    try:
+        for _ in range(3):
+            assert np.any(env.step(np.zeros(6))[0]["critic_state"] != 0)
+    finally:
+        meter.close()
+        env.close()
+    totals = meter.totals
+    assert totals["calls"] == 3 and totals["substeps"] == 3 * env.task.physics_steps_per_control_step
+    assert totals["contact_force_calls"] == 0  # the critic state's contact forces come from the last substep
+    assert totals["collision"] > 0 and totals["constraint_solve"] > 0 and totals["contacts"] > 0
+    assert InsertionTask.step_physics is original_step and InsertionTask._contact_forces is original_forces
+
+
+def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
+    import mujoco
+
+    bench = _benchmark("bench_physics")
+    env = TaskEnv({"observations": bench.OBSERVATIONS}, seed=0)
+    env.reset(seed=0)
+    meter = bench.PhysicsMeter(bench.parse_options(["cone=0", "tolerance=1e-6"]), bench.parse_disable(["MULTICCD"]))
+    try:
+        env.step(np.zeros(6))
+    finally:
+        meter.close()
+    opt = env.physics.model.opt
+    assert opt.cone == 0 and opt.tolerance == 1e-6 and opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_MULTICCD)
+    env.close()
+    for bad in ("gravity=1", "cone", "no_such_field=2"):
+        with pytest.raises(SystemExit, match="is not allowed"):
+            bench.parse_options([bad])
+    with pytest.raises(SystemExit, match="is not allowed"):
+        bench.parse_disable(["NO_SUCH_FLAG"])
+
+
+def test_plot_run_places_a_warm_started_segment_after_the_previous_one_and_a_resumed_one_where_it_is(tmp_path):
+    from vitac.analysis import curves as plot_run
+
+    def write(name, steps):
+        path = tmp_path / name
+        path.write_text("charts/env_steps,charts/success_rate\n" + "".join(f"{s},0.5\n" for s in steps))
+        return path
+
+    first, resumed, warm = write("a.csv", [100, 200]), write("b.csv", [300, 400]), write("c.csv", [50, 150])
+    rows, starts = plot_run.read_segments([first, resumed, warm])
+    assert [float(r["charts/env_steps"]) for r in rows] == [100, 200, 300, 400, 450, 550]
+    assert starts == [300, 450]
+    rows, starts = plot_run.read_segments([first, resumed, warm], max_steps=400)  # one budget for every run
+    assert [float(r["charts/env_steps"]) for r in rows] == [100, 200, 300, 400] and starts == [300]
+    with pytest.raises(SystemExit, match="no rows up to 50 env steps"):
+        plot_run.read_segments([first], max_steps=50)
+    # `vitac.runs summary` reads segments the same way; the figures docs/results.md quotes for one segment:
+    summary = subprocess.run([sys.executable, "-m", "vitac.runs", "summary",
+                              "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
+                             capture_output=True, text=True).stdout.splitlines()
+    assert summary[0] == "env steps: 9,576,448 -> 10,496,000 (450 iterations)"
+    assert summary[1] == "median env steps/s: 1028; 0.25 hours of training"
+    assert "overall 75%" in summary[5]
+    assert summary[-2].startswith("learning rate range: ") and summary[-1].startswith("explained variance: first ")
+    cut = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", "--max-steps", "1e7",
+                          "docs/data/results/privileged_cpu_shaped_bigbatch_metrics.csv"], check=True, cwd=ROOT,
+                         capture_output=True, text=True).stdout.splitlines()
+    assert cut[0] == "env steps: 9,576,448 -> 9,998,336 (207 iterations)"  # 2,048 env steps an iteration
+
+
+def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_foreign_csv(tmp_path):
+    older = tmp_path / "older.csv"
+    older.write_text("charts/env_steps,charts/SPS,losses/loss,losses/approx_kl,losses/entropy,charts/success_rate\n"
+                     "1000,900,0.1,0.02,3.0,0.25\n2000,1100,0.1,0.04,2.9,0.75\n")
+    summary = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", str(older)], check=True, cwd=ROOT,
+                             capture_output=True, text=True).stdout.splitlines()
+    assert summary[:2] == ["env steps: 1,000 -> 2,000 (2 iterations)", "median env steps/s: 1000; 0.00 hours of training"]
+    assert summary[2] == "learning rate: not logged by this run (another algorithm or an older version)"
+    assert summary[-1] == "explained variance: not logged by this run (another algorithm or an older version)"
+    # a distillation run: no PPO statistics, its action error to the teacher instead
+    dagger = subprocess.run([sys.executable, "-m", "vitac.runs", "summary",
+                             "docs/data/results/dagger_privileged_metrics.csv"], check=True, cwd=ROOT,
+                            capture_output=True, text=True).stdout
+    assert "median approx KL: not logged by this run" in dagger
+    assert "action error to the teacher (MSE per dimension, mean of 8 iterations): first 0.209, last 0.012" in dagger
+    foreign = tmp_path / "foreign.csv"
+    foreign.write_text("a,b\n1,2\n")
+    result = subprocess.run([sys.executable, "-m", "vitac.runs", "summary", str(foreign)], cwd=ROOT, capture_output=True, text=True)
+    assert result.returncode != 0 and "not a vitac metrics CSV" in result.stderr
+
+
+@pytest.mark.parametrize("command,message", [
+    (["benchmarks/bench_train.py", "--iterations", "1"], "argument --iterations: 1 is not allowed: expected an integer >= 2"),
+    (["-m", "vitac.runs", "log-std", "x.ckpt", "--episodes", "0"],
+     "argument --episodes: 0 is not allowed: expected an integer >= 1"),
+    (["benchmarks/bench_env.py", "--steps", "many"], "argument --steps: 'many' is not an integer"),
+    (["-m", "vitac.runs", "summary", "x.csv", "--window", "0"],
+     "argument --window: 0.0 is not allowed: expected a number > 0"),
+])
+def test_tools_refuse_a_count_out_of_range_naming_the_flag_before_any_work(command, message):
+    result = subprocess.run([sys.executable, *command], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and message in result.stderr and result.stdout == ""
+
+
+def test_plot_and_summary_tools_refuse_a_file_that_is_not_a_metrics_csv_naming_it(tmp_path):
+    from vitac.analysis.curves import read_segments
+
+    good = tmp_path / "good.csv"
+    good.write_text("charts/env_steps,charts/success_rate\n1000,0.5\n")
+    foreign, header_only, binary = tmp_path / "foreign.csv", tmp_path / "header.csv", tmp_path / "binary.csv"
+    foreign.write_text("a,b\n1,2\n")
+    header_only.write_text("charts/env_steps,charts/success_rate\n")
+    binary.write_bytes(b"\x80\x81\xfe\xff" * 64)
+    for bad, reason in ((foreign, "not a vitac metrics CSV"), (header_only, "not a vitac metrics CSV"),
+                        (binary, "cannot be read as a metrics CSV"), (tmp_path / "missing.csv", "cannot be read")):
+        with pytest.raises(SystemExit, match=f"{bad.name}: .*{reason}"):
+            read_segments([good, bad])  # the bad one named, even after a good segment
+    plot = subprocess.run([sys.executable, "-m", "vitac.runs", "plot", str(foreign), "--out", str(tmp_path / "p.png")],
+                          cwd=ROOT, capture_output=True, text=True)
+    assert plot.returncode != 0 and "not a vitac metrics CSV" in plot.stderr and not (tmp_path / "p.png").exists()
+
+
+def test_outcomes_refuses_a_truncated_or_foreign_report_before_printing_anything(tmp_path):
+    truncated, foreign = tmp_path / "truncated.json", tmp_path / "foreign.json"
+    truncated.write_text('{"episodes": 100, "success_rate": 0.9')
+    foreign.write_text('{"rows": []}')
+    for bad, reason in ((truncated, "cannot be read as a vitac.evaluate report"),
+                        (foreign, "not a vitac.evaluate report")):
+        result = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(bad)], cwd=ROOT, capture_output=True, text=True)
+        assert result.returncode != 0 and f"{bad.name}: {reason}" in result.stderr and result.stdout == ""
+
+
+@pytest.mark.parametrize("args", [
+    ["-m", "vitac.runs", "summary", "docs/data/results/privileged_32envs_seed1_metrics.csv"],
+    ["-m", "vitac.runs", "outcomes", "docs/data/results/privileged_32envs_seed1_eval_paper.json"],
+])
+def test_printing_tools_stop_quietly_when_their_reader_has_gone(args):
+    # `tool ... | head`: the reader closes early. Here it is gone before the tool writes at all.
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        tool = subprocess.run([sys.executable, *args], cwd=ROOT, stdout=write_end, stderr=subprocess.PIPE, text=True)
+    finally:
+        os.close(write_end)
+    assert "BrokenPipeError" not in tool.stderr and "Traceback" not in tool.stderr, tool.stderr
+    assert tool.returncode == -signal.SIGPIPE  # ended by the signal, as `head`'s other writers are
+
+
+def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_others():
+    from vitac.analysis.outcomes import pooled
+
+    setting = dict(ckpt="run/last.ckpt", randomization_scale=1.0, socket_obs_noise=0.005, randomize_only=None,
+                   policy="deterministic")
+    first = dict(setting, seed=2000000, episodes=100, success_rate=0.9)
+    more = dict(setting, seed=2000100, episodes=300, success_rate=257 / 300)
+    # 347 / 400: Wilson interval by hand, p = 0.8675, z = 1.96.
+    assert pooled([first, more], ["a", "b"]) == "pooled: 347 of 400 episodes succeeded = 86.8% (95% Wilson interval 83.1-89.7%)"
+    with pytest.raises(SystemExit, match="share episodes"):
+        pooled([first, dict(more, seed=2000050)], ["a", "b"])
+    with pytest.raises(SystemExit, match=r"\['ckpt'\] differ"):
+        pooled([first, dict(more, ckpt="other/last.ckpt")], ["a", "b"])
