@@ -31,6 +31,9 @@ DAGGER = ["algo=dagger", "algo.beta_start=0.0"]
 DAGGER_1X1024 = DAGGER + ["algo.mini_epochs=1", "algo.minibatch_size=1024"]
 # One pass of 256 (4 gradient steps) drawn from the last 4 rollouts: a quarter of the default's update.
 DAGGER_1X256_KEPT4 = DAGGER + ["algo.mini_epochs=1", "algo.dataset_rollouts=4"]
+# The same 1,024 transitions an update in 16 minibatches of 64 (the default's 16 gradient steps, a quarter of its
+# samples).
+DAGGER_1X64_KEPT4 = DAGGER_1X256_KEPT4 + ["algo.minibatch_size=64"]
 CONFIGS = {"privileged": PRIVILEGED,
            "privileged_workers_only": PRIVILEGED + ["envs.step_in_main=false"],
            "privileged_horizon128": PRIVILEGED + ["algo.horizon=128", "algo.minibatch_size=512"],
@@ -45,7 +48,8 @@ CONFIGS = {"privileged": PRIVILEGED,
                                           "encoder.image.bf16=false"],
            "wrist_tactile_cmt_sym_dagger": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER,
            "wrist_tactile_cmt_sym_dagger_1x1024": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER_1X1024,
-           "wrist_tactile_cmt_sym_dagger_1x256_kept4": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER_1X256_KEPT4}
+           "wrist_tactile_cmt_sym_dagger_1x256_kept4": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER_1X256_KEPT4,
+           "wrist_tactile_cmt_sym_dagger_1x64_kept4": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER_1X64_KEPT4}
 
 
 def untrained_teacher(out: str) -> str:
