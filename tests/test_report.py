@@ -4,6 +4,7 @@ that skip finished cells and resume interrupted ones."""
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -85,6 +86,29 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     assert "| Privileged | done: 10/10 it, 0.00 M steps | done" in status.stdout
     assert "| + Contact forces | done: 10/10 it, 0.00 M steps | partial: 4/10 it, 0.00 M steps | missing |" in status.stdout
     assert "5 done" not in status.stdout and "7 done, 1 partial, 22 missing of 30 cells" in status.stdout
+
+
+def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_gone(tmp_path):
+    from vitac.analysis.archive import archive
+
+    sweep = tmp_path / "sweep"
+    runs = [fake_run(sweep, "Wrist", 0, 10, successes=episodes(300)), fake_run(sweep, "Tactile", 1, 4)]
+    before = table1.build([sweep], seeds=[0, 1])
+    for run in runs:
+        archive(run, tmp_path / "archive" / run.name)
+    shutil.rmtree(sweep)
+    after = table1.build([tmp_path / "archive"], seeds=[0, 1])
+    assert not list((tmp_path / "archive").rglob("*.ckpt"))
+    for row_before, row_after in zip(before["rows"], after["rows"], strict=True):
+        for seed, cell in row_before["seeds"].items():
+            assert {k: v for k, v in row_after["seeds"][seed].items() if k != "run"} == \
+                   {k: v for k, v in cell.items() if k != "run"}
+    wrist = next(r for r in after["rows"] if r["row"] == "Wrist")["seeds"][0]
+    assert wrist["status"] == "done" and wrist["success"] == 0.75 and wrist["env_steps"] == 10 * PER_ITERATION
+    with pytest.raises(SystemExit, match="is not allowed: it is not empty"):
+        archive(fake_run(sweep, "Wrist", 2, 10), tmp_path / "archive" / runs[1].name)
+    with pytest.raises(SystemExit, match="not a run directory to archive, it has no checkpoints/last.ckpt"):
+        archive(tmp_path / "archive" / runs[0].name, tmp_path / "again")
 
 
 def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):

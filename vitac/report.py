@@ -40,8 +40,8 @@ def evaluate_missing(table: dict, episodes: int) -> int:
     ran = 0
     for row in table["rows"]:
         for cell in row["seeds"].values():
-            if cell["status"] == "done" and cell["success"] is None:
-                ckpt = Path(cell["run"]) / "checkpoints" / "last.ckpt"
+            ckpt = Path(cell["run"] or "") / "checkpoints" / "last.ckpt"
+            if cell["status"] == "done" and cell["success"] is None and ckpt.is_file():  # an archive has none
                 evaluate(str(ckpt), episodes=episodes, num_envs=8, num_workers="auto", seed=EVAL_SEED,
                          out=str(ckpt.with_suffix(".eval.json")))
                 ran += 1

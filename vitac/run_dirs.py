@@ -10,6 +10,7 @@ earlier attempt's file is first kept as `csv/metrics_part<k>.csv`; `read_metrics
 from __future__ import annotations
 
 import csv
+import json
 import shutil
 import tempfile
 from pathlib import Path
@@ -20,6 +21,8 @@ from vitac.utils.checkpoint import load_checkpoint
 from vitac.utils.records import read_whole
 
 PART_PREFIX = "metrics_part"
+EVALUATION = Path("checkpoints") / "last.eval.json"  # vitac.evaluate's report on the last checkpoint
+ARCHIVE_RECORD = "run.json"  # in a run's archive (vitac/analysis/archive.py): the iterations its checkpoint held
 MIN_FREE_BYTES = 200 * 2**20  # a run's checkpoints (up to ~14 MB each), metrics and videos, with room to spare
 
 
@@ -86,10 +89,14 @@ def read_metrics(run: Path, hint: str = "") -> list[dict]:
 
 
 def run_status(run: Path) -> dict:
-    """A run directory's row, seed, status (done, partial, missing: no checkpoint yet), completed iterations of its
-    budget and env steps."""
+    """A run directory's (or its archive's) row, seed, status (done, partial, missing: no checkpoint yet), completed
+    iterations of its budget and env steps."""
     cfg = read_whole(Path(run) / "config.yaml", yaml.safe_load)
-    iterations, done = int(cfg["trainer"]["iterations"]), completed_iterations(run)
+    iterations = int(cfg["trainer"]["iterations"])
+    if last_checkpoint(run).is_file() or not (Path(run) / ARCHIVE_RECORD).is_file():
+        done = completed_iterations(run)
+    else:  # an archived run: what its checkpoint held when it was archived
+        done = int(read_whole(Path(run) / ARCHIVE_RECORD, json.load, "a run archive's record")["iterations"])
     steps = done * int(cfg["envs"]["num_envs"]) * int(cfg["algo"]["horizon"])
     status = "done" if done >= iterations else "partial" if done else "missing"
     return dict(run=str(run), row=cfg.get("row"), seed=cfg.get("seed"), status=status, iterations=done,

@@ -16,7 +16,7 @@ from pathlib import Path
 from vitac.analysis.compare import wall_clock_hours
 from vitac.analysis.outcomes import discordant, mcnemar_exact
 from vitac.analysis.status import sweep_cells
-from vitac.run_dirs import read_metrics
+from vitac.run_dirs import EVALUATION, read_metrics
 from vitac.utils.records import read_whole
 
 
@@ -63,7 +63,7 @@ def evaluated(cell: dict, min_episodes: int) -> dict:
     run = Path(cell["run"])
     hours = wall_clock_hours(read_metrics(run))
     cell["hours"] = round(hours[-1][1], 3) if hours else None
-    report = run / "checkpoints" / "last.eval.json"
+    report = run / EVALUATION
     if cell["status"] == "done" and report.is_file():
         data = read_whole(report, json.load, "a vitac.evaluate report")
         if data["episodes"] >= min_episodes:
