@@ -161,6 +161,18 @@ def test_table_one_budget_is_the_distillation_recipes_settings_for_450_iteration
     assert (recipe.algo.lr_schedule, recipe.algo.dataset_rollouts) == ("linear", 4)  # Table I's rows' settings
 
 
+def test_the_first_command_distils_with_table_ones_update_on_a_short_budget():
+    """`python -m vitac.train` (preset=cpu) distils with Table I's update (the last 4 rollouts, the falling rate)
+    for 120 iterations, as its documented run did; PPO at that preset and the 2-minute recipe keep their own."""
+    first, table = compose_config([]), compose_config(["preset=cpu_table1"])
+    assert first.algo._target_ == "vitac.algos.dagger.DAgger" and first.obs.name == "wrist_tactile"
+    assert (first.trainer.iterations, first.algo.beta_iterations) == (120, 30)
+    assert {**first.algo, "beta_iterations": None} == {**table.algo, "beta_iterations": None}
+    assert compose_config(["algo=ppo"]).trainer.iterations == 20
+    recipe = compose_config(["experiment=recipe/privileged_dagger"])
+    assert (recipe.algo.lr_schedule, recipe.algo.dataset_rollouts, recipe.trainer.iterations) == ("fixed", 1, 60)
+
+
 EXPERIMENTS = sorted(str(p.relative_to(Path(CONF) / "experiment").with_suffix("")) for p in
                      (Path(CONF) / "experiment").glob("*/*.yaml"))
 
