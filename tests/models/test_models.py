@@ -114,7 +114,7 @@ def test_sigmoid_log_std_bound_starts_at_init_and_keeps_a_gradient_past_the_boun
         _, log_std, _, _ = h(torch.zeros(2, 1, 4), h.initial_state(1), torch.zeros(2, 1))
         log_std.sum().backward()
     assert head.log_std.bias.grad.abs().min() > 0 and clamped.log_std.bias.grad.abs().max() == 0
-    assert float(head(torch.zeros(1, 1, 4), head.initial_state(1), torch.zeros(1, 1))[1].max()) < 0.5
+    assert float(head(torch.zeros(1, 1, 4), head.initial_state(1), torch.zeros(1, 1))[1].max().detach()) < 0.5
     with pytest.raises(ValueError, match="log_std_bound"):
         RecurrentActorHead(4, log_std_bound="tanh")
 
