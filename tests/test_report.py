@@ -111,6 +111,22 @@ def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_
         archive(tmp_path / "archive" / runs[0].name, tmp_path / "again")
 
 
+def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_checkpoint_and_skips_archives(
+        tmp_path, monkeypatch):
+    from vitac.analysis.archive import archive
+    from vitac.report import evaluate_missing
+
+    sweep = tmp_path / "sweep"
+    run = fake_run(sweep, "Wrist", 0, 10)
+    fake_run(sweep, "Tactile", 0, 4)  # partial: not evaluated
+    fake_run(sweep, "Privileged", 0, 10, successes=episodes(300))  # evaluated already
+    archive(fake_run(tmp_path / "other", "Wrist", 1, 10), sweep / "archived")  # done, no checkpoint to evaluate
+    calls = []
+    monkeypatch.setattr("vitac.evaluate.evaluate", lambda ckpt, **kw: calls.append((ckpt, kw["out"], kw["seed"])))
+    assert evaluate_missing(table1.build([sweep], seeds=[0, 1]), episodes=400) == 1
+    assert calls == [(str(run / "checkpoints" / "last.ckpt"), str(run / "checkpoints" / "last.eval.json"), 2_000_000)]
+
+
 def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
     sweep = tmp_path / "screw"
     for seed in range(3):

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from vitac.analysis import table1
 from vitac.analysis.status import sweep_cells
-from vitac.run_dirs import read_metrics
+from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics
 from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
 from vitac.utils.records import read_whole, write_json
 
@@ -40,10 +40,12 @@ def evaluate_missing(table: dict, episodes: int) -> int:
     ran = 0
     for row in table["rows"]:
         for cell in row["seeds"].values():
-            ckpt = Path(cell["run"] or "") / "checkpoints" / "last.ckpt"
-            if cell["status"] == "done" and cell["success"] is None and ckpt.is_file():  # an archive has none
-                evaluate(str(ckpt), episodes=episodes, num_envs=8, num_workers="auto", seed=EVAL_SEED,
-                         out=str(ckpt.with_suffix(".eval.json")))
+            if cell["status"] != "done" or cell["success"] is not None:
+                continue
+            run = Path(cell["run"])
+            if last_checkpoint(run).is_file():  # an archived run has none
+                evaluate(str(last_checkpoint(run)), episodes=episodes, num_envs=8, num_workers="auto", seed=EVAL_SEED,
+                         out=str(run / EVALUATION))
                 ran += 1
     return ran
 

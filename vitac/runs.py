@@ -6,7 +6,7 @@
     python -m vitac.runs outcomes <run>/checkpoints/last.eval.json [--paired | --pooled]
     python -m vitac.runs log-std <run>/checkpoints/last.ckpt      # is the action noise stuck at its bound?
     python -m vitac.runs status outputs/table1 [--seeds 0 1 2]    # a sweep's cells: done, partial, missing
-    python -m vitac.runs archive <run> --out docs/data/runs/<name>  # a run's summary to commit, read as the run
+    python -m vitac.runs archive <run> --out docs/data/table1_runs/<name>  # a run's summary to commit, read as the run
 """
 
 from __future__ import annotations

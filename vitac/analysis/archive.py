@@ -1,6 +1,6 @@
 """A run's summary, small enough to commit, that `vitac.report` and `vitac.runs status` read as the run itself.
 
-    python -m vitac.runs archive <run dir> --out docs/data/runs/<name>
+    python -m vitac.runs archive <run dir> --out docs/data/table1_runs/<row>_seed<k>
 
 Keeps what the report reads (the resolved `config.yaml`, every metrics file of the run's attempts, the evaluation
 of its last checkpoint) and, in `run.json`, the iterations its last checkpoint held, so Table I can be regenerated
