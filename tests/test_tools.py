@@ -226,3 +226,14 @@ def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_
         pooled([first, dict(more, seed=2000050)], ["a", "b"])
     with pytest.raises(SystemExit, match=r"\['ckpt'\] differ"):
         pooled([first, dict(more, ckpt="other/last.ckpt")], ["a", "b"])
+
+
+def test_runs_help_lists_every_command_and_an_unknown_command_names_the_allowed_ones(capsys):
+    from vitac import runs
+
+    runs.main(["--help"])  # returns: help is not an error
+    listed = capsys.readouterr().out
+    assert all(f"python -m vitac.runs {name}" in listed for name in runs.COMMANDS)
+    with pytest.raises(SystemExit) as refused:
+        runs.main(["plott"])
+    assert "command='plott' is not allowed" in str(refused.value) and "'plot'" in str(refused.value)

@@ -21,6 +21,9 @@ COMMANDS = {"plot": "vitac.analysis.curves", "compare": "vitac.analysis.compare"
 
 def main(argv=None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] in (["-h"], ["--help"]):
+        print(__doc__)
+        return
     if not argv or argv[0] not in COMMANDS:
         given = repr(argv[0]) if argv else "nothing"
         raise SystemExit(f"{__doc__}\ncommand={given} is not allowed: expected one of {list(COMMANDS)}")
