@@ -11,12 +11,7 @@ from hydra.core.hydra_config import HydraConfig
 from lightning.pytorch.loggers import CSVLogger
 from omegaconf import DictConfig, OmegaConf
 
-from vitac.algos.callbacks import (
-    BestEvaluation,
-    IterationProgressBar,
-    LastCheckpoint,
-    NonFiniteGuard,
-)
+from vitac.algos.callbacks import run_callbacks
 from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
@@ -66,11 +61,8 @@ def train(cfg: DictConfig) -> dict:
                                                                    num_workers=0, step_in_main=False, seed=1_000_000),
                              make_video_env=lambda: TaskEnv(video_settings, seed=1_000_000, offscreen_size=OUTSIDE),
                              video_dir=out / "videos")
-    callbacks = [instantiate(cfg.checkpoint, dirpath=out / "checkpoints"),
-                 BestEvaluation(dirpath=out / "checkpoints", filename="best", monitor="eval/success_rate", mode="max",
-                                save_top_k=1, auto_insert_metric_name=False),
-                 evaluation, LastCheckpoint(out / "checkpoints" / "last.ckpt"), IterationProgressBar(),
-                 NonFiniteGuard(out / "checkpoints" / "last.ckpt", cfg.trainer.max_nonfinite_iterations)]
+    callbacks = run_callbacks(instantiate(cfg.checkpoint, dirpath=out / "checkpoints"), evaluation, out / "checkpoints",
+                              cfg.trainer.max_nonfinite_iterations)
     loggers = [CSVLogger(out, name="csv", version="")]
     if cfg.logger.wandb:
         loggers.append(OfflineWandbLogger(save_dir=str(out), project=cfg.logger.project, name=cfg.logger.get("name"),

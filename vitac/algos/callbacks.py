@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+from pathlib import Path
 
 import lightning as L
 from lightning.pytorch.callbacks import ModelCheckpoint
@@ -177,3 +178,14 @@ class IterationProgressBar(L.Callback):
 
     def on_exception(self, trainer, module, exception):
         self.bar.close()
+
+
+def run_callbacks(checkpoint: ModelCheckpoint, evaluation: EvaluationCallback, checkpoints: Path,
+                  max_nonfinite_iterations: int) -> list[L.Callback]:
+    """A training run's callbacks, in the order they run at an iteration's end: the periodic checkpoint, the
+    best-evaluation checkpoint, the evaluation, the resume point, the progress bar and the non-finite guard."""
+    return [checkpoint,
+            BestEvaluation(dirpath=checkpoints, filename="best", monitor="eval/success_rate", mode="max",
+                           save_top_k=1, auto_insert_metric_name=False),
+            evaluation, LastCheckpoint(checkpoints / "last.ckpt"), IterationProgressBar(),
+            NonFiniteGuard(checkpoints / "last.ckpt", max_nonfinite_iterations)]
