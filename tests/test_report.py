@@ -114,7 +114,7 @@ def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_
 def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_checkpoint_and_skips_archives(
         tmp_path, monkeypatch):
     from vitac.analysis.archive import archive
-    from vitac.report import evaluate_missing
+    from vitac.report import evaluate_missing, screw_cells, table_cells
 
     sweep = tmp_path / "sweep"
     run = fake_run(sweep, "Wrist", 0, 10)
@@ -123,8 +123,11 @@ def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_check
     archive(fake_run(tmp_path / "other", "Wrist", 1, 10), sweep / "archived")  # done, no checkpoint to evaluate
     calls = []
     monkeypatch.setattr("vitac.evaluate.evaluate", lambda ckpt, **kw: calls.append((ckpt, kw["out"], kw["seed"])))
-    assert evaluate_missing(table1.build([sweep], seeds=[0, 1]), episodes=400) == 1
-    assert calls == [(str(run / "checkpoints" / "last.ckpt"), str(run / "checkpoints" / "last.eval.json"), 2_000_000)]
+    screw = fake_run(sweep, "Screw: wrist", 2, 10)  # the screw figure's cells are evaluated too
+    cells = table_cells(table1.build([sweep], seeds=[0, 1, 2])) + sum(screw_cells([sweep], [0, 1, 2], 400).values(), [])
+    assert evaluate_missing(cells, episodes=400) == 2
+    assert calls == [(str(run / "checkpoints" / "last.ckpt"), str(run / "checkpoints" / "last.eval.json"), 2_000_000),
+                     (str(screw / "checkpoints" / "last.ckpt"), str(screw / "checkpoints" / "last.eval.json"), 2_000_000)]
 
 
 def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):

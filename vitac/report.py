@@ -33,20 +33,31 @@ SCREW_ROWS = {"Privileged": "Screw: privileged", "Wrist-camera": "Screw: wrist",
 FUSION_ROWS = {"Naive": table1.NAIVE, "Gated": "Fusion - Gated (lambda_sym=0)", "CMT": "Fusion - CMT (lambda_sym=0)"}
 
 
-def evaluate_missing(table: dict, episodes: int) -> int:
+def table_cells(table: dict) -> list[dict]:
+    """Every cell of Table I, as evaluated() gives it."""
+    return [cell for row in table["rows"] for cell in row["seeds"].values()]
+
+
+def screw_cells(dirs: list[Path], seeds: list[int], min_episodes: int) -> dict[str, list[dict]]:
+    """{policy name: its evaluated cells, one per seed} for the paper's screw figure (runs of experiment=screw/*)."""
+    cells = sweep_cells(dirs, list(SCREW_ROWS.values()), seeds)
+    return {name: [table1.evaluated(cells[(row, seed)], min_episodes) for seed in seeds]
+            for name, row in SCREW_ROWS.items()}
+
+
+def evaluate_missing(cells: list[dict], episodes: int) -> int:
     """Evaluate every finished cell without an evaluation of `episodes` episodes; returns how many ran."""
     from vitac.evaluate import evaluate
 
     ran = 0
-    for row in table["rows"]:
-        for cell in row["seeds"].values():
-            if cell["status"] != "done" or cell["success"] is not None:
-                continue
-            run = Path(cell["run"])
-            if last_checkpoint(run).is_file():  # an archived run has none
-                evaluate(str(last_checkpoint(run)), episodes=episodes, num_envs=8, num_workers="auto", seed=EVAL_SEED,
-                         out=str(run / EVALUATION))
-                ran += 1
+    for cell in cells:
+        if cell["status"] != "done" or cell["success"] is not None:
+            continue
+        run = Path(cell["run"])
+        if last_checkpoint(run).is_file():  # an archived run has none
+            evaluate(str(last_checkpoint(run)), episodes=episodes, num_envs=8, num_workers="auto", seed=EVAL_SEED,
+                     out=str(run / EVALUATION))
+            ran += 1
     return ran
 
 
@@ -91,18 +102,15 @@ def figures(table: dict, out: Path) -> list[Path]:
     return paths
 
 
-def screw_figure(dirs: list[Path], seeds: list[int], min_episodes: int, out: Path) -> Path | None:
-    """The paper's screw figure from runs of experiment=screw/*: held-out success per policy, one dot per seed
-    and the mean as a bar; None when no screw run was evaluated."""
+def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> Path | None:
+    """The paper's screw figure from screw_cells(): held-out success per policy, one dot per seed and the mean as a
+    bar; None when no screw run was evaluated."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    cells = sweep_cells(dirs, list(SCREW_ROWS.values()), seeds)
-    results = {name: [100 * c["success"] for seed in seeds
-                      if (c := table1.evaluated(cells[(row, seed)], min_episodes))["success"] is not None]
-               for name, row in SCREW_ROWS.items()}
+    results = {name: [100 * c["success"] for c in seeds if c["success"] is not None] for name, seeds in cells.items()}
     if not any(results.values()):
         return None
     fig, ax = plt.subplots(figsize=(4.5, 3.5))
@@ -156,8 +164,10 @@ def main(argv=None):
         if not d.is_dir():
             raise SystemExit(f"{d}: no such directory")
     table = table1.build(args.dirs, args.seeds, args.min_episodes)
-    if args.evaluate and evaluate_missing(table, args.min_episodes):
+    screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
+    if args.evaluate and evaluate_missing(table_cells(table) + sum(screw.values(), []), args.min_episodes):
         table = table1.build(args.dirs, args.seeds, args.min_episodes)
+        screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
     args.out.mkdir(parents=True, exist_ok=True)
     md, tex = table1.markdown(table), table1.latex(table)
     (args.out / "table1.md").write_text(md + "\n")
@@ -172,8 +182,8 @@ def main(argv=None):
         named = dict(item.split("=", 1) for item in args.qual)
         episodes = {name: force_fields.record_fields(ckpt, EVAL_SEED) for name, ckpt in named.items()}
         paths.append(force_fields.figure(episodes, args.out / "force_fields.png"))
-    screw = screw_figure(args.dirs, args.seeds, args.min_episodes, args.out)
-    paths += [screw] if screw else []
+    screw_png = screw_figure(screw, args.min_episodes, args.out)
+    paths += [screw_png] if screw_png else []
     print(md)
     print(f"\nwrote {args.out / 'table1.md'}, {args.out / 'table1.tex'}, {args.out / 'table1.json'}, "
           + ", ".join(str(p) for p in paths))
