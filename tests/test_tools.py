@@ -237,3 +237,18 @@ def test_runs_help_lists_every_command_and_an_unknown_command_names_the_allowed_
     with pytest.raises(SystemExit) as refused:
         runs.main(["plott"])
     assert "command='plott' is not allowed" in str(refused.value) and "'plot'" in str(refused.value)
+
+
+def test_outcomes_tables_each_tasks_own_measurements_in_table_units(tmp_path):
+    screw = dict(episodes=2, success_rate=0.5, seed=2_000_000, final_state=[
+        dict(outcome="screwed down", turns_to_go=2.0, nut_offset_xy=0.0002, nut_tilt=0.01),
+        dict(outcome="slipped in the grasp", turns_to_go=3.25, nut_offset_xy=0.004, nut_tilt=0.5)])
+    insertion = dict(episodes=1, success_rate=1.0, seed=2_000_000, final_state=[
+        dict(outcome="inserted", peg_offset_xy=0.0003, peg_height=0.0001, peg_tilt=0.0)])
+    write_json(tmp_path / "screw.json", screw)
+    write_json(tmp_path / "insertion.json", insertion)
+    table = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "screw.json"),
+                            str(tmp_path / "insertion.json")], check=True, cwd=ROOT, capture_output=True, text=True).stdout
+    assert "| thread turns to go: median (quartiles) | offset from axis, mm | tilt, deg | height above floor, mm |" in table
+    assert "| screw | slipped in the grasp | 1 | 3.2 (3.2-3.2) | 4.0 (4.0-4.0) | 28.6 (28.6-28.6) |  |" in table
+    assert "| insertion | inserted | 1 |  | 0.3 (0.3-0.3) | 0.0 (0.0-0.0) | 0.1 (0.1-0.1) |" in table

@@ -1,10 +1,11 @@
-"""How evaluated episodes ended: outcome counts and where the peg was, from `vitac.evaluate` JSON reports.
+"""How evaluated episodes ended: outcome counts and where the held part was, from `vitac.evaluate` JSON reports.
 
     python -m vitac.runs outcomes docs/data/results/privileged_cpu_stage1_eval_paper.json [more.json ...] [--paired]
 
-For each report and outcome (inserted, on or above the socket, ...): the number of episodes and the
-quartiles of the peg's final horizontal offset from the hole axis (mm), its height above the hole floor
-(mm) and its tilt (degrees), as a markdown table.
+For each report and outcome (inserted, on or above the socket, screwed down, ...): the number of episodes and
+the quartiles of what the task's `outcome()` measures at the episode's end, as a markdown table: for insertion
+the peg's horizontal offset from the hole axis (mm), its height above the hole floor (mm) and its tilt
+(degrees); for the screw task the thread turns still to go, the nut's offset from the bolt's axis and its tilt.
 
 `--paired` compares two reports of the same held-out episodes (same seed, count and randomization): how
 many episodes only the first inserted, how many only the second, and the exact two-sided McNemar p-value.
@@ -30,6 +31,8 @@ from vitac.utils.records import read_whole
 
 
 def quartiles(values) -> str:
+    if not values:  # a column of another task's report
+        return ""
     q1, q2, q3 = np.percentile(values, [25, 50, 75])
     return f"{q2:.1f} ({q1:.1f}-{q3:.1f})"
 
@@ -88,13 +91,21 @@ def read_report(path: Path) -> dict:
     return report
 
 
+# What a task's outcome() measures, as the table shows it: (column, factor from SI units).
+COLUMNS = {"peg_offset_xy": ("offset from axis, mm", 1000.0), "peg_height": ("height above floor, mm", 1000.0),
+           "peg_tilt": ("tilt, deg", math.degrees(1.0)), "turns_to_go": ("thread turns to go", 1.0),
+           "nut_offset_xy": ("offset from axis, mm", 1000.0), "nut_tilt": ("tilt, deg", math.degrees(1.0))}
+# Reports written before 'final_state' held the peg's values converted already, under these names.
+OLD_COLUMNS = {"offset_xy_mm": "offset from axis, mm", "height_mm": "height above floor, mm", "tilt_deg": "tilt, deg"}
+
+
 def final_states(report: dict) -> list[dict]:
-    """Each episode's end: outcome, offset from the hole axis and height (mm), tilt (deg); reports written
-    before 'final_state' held these already converted, as 'final_peg'."""
+    """Each episode's end: its outcome and the task's measurements, keyed by table column (a measurement this
+    module does not know keeps its own name and unit)."""
     if "final_peg" in report:
-        return report["final_peg"]
-    return [dict(outcome=e["outcome"], offset_xy_mm=1000 * e["peg_offset_xy"], height_mm=1000 * e["peg_height"],
-                 tilt_deg=math.degrees(e["peg_tilt"])) for e in report["final_state"]]
+        return [{OLD_COLUMNS.get(k, k): v for k, v in e.items()} for e in report["final_peg"]]
+    return [{COLUMNS.get(k, (k, 1.0))[0]: v if k == "outcome" else COLUMNS.get(k, (k, 1.0))[1] * v
+             for k, v in e.items()} for e in report["final_state"]]
 
 
 def main(argv=None):
@@ -107,14 +118,17 @@ def main(argv=None):
     if args.paired and len(args.reports) != 2:
         parser.error("--paired takes exactly two reports")
     reports = [read_report(path) for path in args.reports]
-    print("| report | outcome | episodes | offset from axis, mm: median (quartiles) | height above floor, mm | tilt, deg |")
-    print("|---|---|---|---|---|---|")
-    for path, report in zip(args.reports, reports, strict=True):
+    ends = [final_states(report) for report in reports]
+    columns = list(dict.fromkeys(k for episodes in ends for e in episodes for k in e if k != "outcome"))
+    print("| report | outcome | episodes | " + " | ".join(f"{c}: median (quartiles)" if i == 0 else c
+                                                     for i, c in enumerate(columns)) + " |")
+    print("|---|---|---|" + "---|" * len(columns))
+    for path, episodes_of_report in zip(args.reports, ends, strict=True):
         by_outcome: dict[str, list] = {}
-        for episode in final_states(report):
+        for episode in episodes_of_report:
             by_outcome.setdefault(episode["outcome"], []).append(episode)
         for outcome, episodes in sorted(by_outcome.items(), key=lambda item: -len(item[1])):
-            cells = [quartiles([e[k] for e in episodes]) for k in ("offset_xy_mm", "height_mm", "tilt_deg")]
+            cells = [quartiles([e[c] for e in episodes if c in e]) for c in columns]
             print(f"| {path.stem} | {outcome} | {len(episodes)} | " + " | ".join(cells) + " |")
     if args.paired:
         print("\n" + paired(*reports, names=tuple(path.stem for path in args.reports)))
