@@ -63,6 +63,20 @@ def test_a_json_record_replaces_its_file_only_once_written_whole(tmp_path, monke
     assert [p.name for p in tmp_path.iterdir()] == ["last.eval.json"]  # and no temporary file left behind
 
 
+def test_reports_and_checkpoints_get_the_permissions_of_a_plainly_created_file(tmp_path):
+    from vitac.utils.checkpoint import PortableCheckpointIO
+
+    umask = os.umask(0o027)
+    try:
+        write_json(tmp_path / "report.json", {"success_rate": 0.5})
+        PortableCheckpointIO().save_checkpoint({"state_dict": {}}, tmp_path / "last.ckpt")
+        (tmp_path / "plain.txt").write_text("")
+    finally:
+        os.umask(umask)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
+    assert modes == {"report.json": 0o640, "last.ckpt": 0o640, "plain.txt": 0o640}  # mkstemp alone gives 0o600
+
+
 def test_bench_physics_meter_counts_every_substep_and_restores_the_methods_it_patches():
     from vitac.tasks.insertion.task import InsertionTask
 

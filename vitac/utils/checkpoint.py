@@ -6,12 +6,13 @@ from __future__ import annotations
 import io
 import os
 import pickle
-import tempfile
 import zipfile
 from pathlib import Path
 
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
+
+from vitac.utils.records import temporary_beside
 
 
 def resolve_checkpoint(path: str | Path) -> Path:
@@ -113,7 +114,7 @@ class PortableCheckpointIO(TorchCheckpointIO):
         leaves the previous checkpoint whole, and the run stops naming the file and the cause."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        fd, tmp = temporary_beside(path)
         os.close(fd)
         try:
             torch.save(checkpoint, tmp)

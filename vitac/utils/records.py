@@ -17,13 +17,23 @@ import yaml
 from vitac.utils.checks import usable_cores
 
 
+def temporary_beside(path: Path) -> tuple[int, str]:
+    """An open temporary file in `path`'s directory, to be renamed over `path` once written whole; with the
+    permissions a plainly created file gets (mkstemp's are 0600, which would hide results from collaborators)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    umask = os.umask(0o022)  # reading the umask means setting it; restored at once
+    os.umask(umask)
+    os.fchmod(fd, 0o666 & ~umask)
+    return fd, tmp
+
+
 def write_json(path: Path, data) -> None:
     """Write `data` as indented JSON to `path` through a temporary file beside it, renamed over `path` at the end:
     a run killed while writing leaves the previous file (or none), never half a report."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(data, indent=2) + "\n"
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = temporary_beside(path)
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)
