@@ -138,8 +138,9 @@ def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
     result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(tmp_path / "out")], cwd=ROOT,
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
-    data = json.loads((tmp_path / "out" / "screw.json").read_text())["success_percent_per_seed"]
-    assert data == {"Privileged": [75.0], "Wrist-camera": [], "Tactile": [100.0, 99.75, 99.5]}
+    data = json.loads((tmp_path / "out" / "screw.json").read_text())
+    assert data["success_percent_per_seed"] == {"Privileged": [75.0], "Wrist-camera": [], "Tactile": [100.0, 99.75, 99.5]}
+    assert data["steps_to_success_per_seed"] == {"Privileged": [100.0], "Wrist-camera": [], "Tactile": [100.0, 101.0, 102.0]}
     assert (tmp_path / "out" / "screw.png").stat().st_size > 0
 
 

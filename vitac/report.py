@@ -104,25 +104,36 @@ def figures(table: dict, out: Path) -> list[Path]:
 
 def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> Path | None:
     """The paper's screw figure from screw_cells(): held-out success per policy, one dot per seed and the mean as a
-    bar; None when no screw run was evaluated."""
+    bar, and beside it the mean control steps to screw down (where all policies succeed, speed is what differs);
+    None when no screw run was evaluated."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    results = {name: [100 * c["success"] for c in seeds if c["success"] is not None] for name, seeds in cells.items()}
+    done = {name: [c for c in seeds if c["success"] is not None] for name, seeds in cells.items()}
+    results = {name: [100 * c["success"] for c in seeds] for name, seeds in done.items()}
+    steps = {name: [c["steps_to_success"] for c in seeds if c["steps_to_success"] is not None]
+             for name, seeds in done.items()}
     if not any(results.values()):
         return None
-    fig, ax = plt.subplots(figsize=(4.5, 3.5))
-    for i, values in enumerate(results.values()):
+    fig, (ax, ax_steps) = plt.subplots(1, 2, figsize=(8, 3.5))
+    for i, (values, times) in enumerate(zip(results.values(), steps.values(), strict=True)):
         if values:
             ax.bar(i, sum(values) / len(values), color=f"C{i}", alpha=0.6)
             ax.scatter([i] * len(values), values, color="k", s=12, zorder=3)
         else:
             ax.text(i, 2, "missing", ha="center", fontsize=8)
-    ax.set_xticks(range(len(results)), [f"{n}\n({len(v)} seeds)" for n, v in results.items()])
+        if times:
+            ax_steps.bar(i, sum(times) / len(times), color=f"C{i}", alpha=0.6)
+            ax_steps.scatter([i] * len(times), times, color="k", s=12, zorder=3)
+    labels = [f"{n}\n({len(v)} seed{'s' if len(v) != 1 else ''})" for n, v in results.items()]
+    ax.set_xticks(range(len(results)), labels)
     ax.set(ylabel="held-out success (%)", ylim=(0, 105), title="screw task (paper's appendix figure)")
-    write_json(out / "screw.json", dict(success_percent_per_seed=results, min_episodes=min_episodes))
+    ax_steps.set_xticks(range(len(results)), labels)
+    ax_steps.set(ylabel="control steps to screw down (mean)", title="how fast, where it succeeds")
+    write_json(out / "screw.json", dict(success_percent_per_seed=results, steps_to_success_per_seed=steps,
+                                        min_episodes=min_episodes))
     return _save(fig, out / "screw.png")
 
 
