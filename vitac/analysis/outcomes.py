@@ -104,8 +104,15 @@ def final_states(report: dict) -> list[dict]:
     module does not know keeps its own name and unit)."""
     if "final_peg" in report:
         return [{OLD_COLUMNS.get(k, k): v for k, v in e.items()} for e in report["final_peg"]]
-    return [{COLUMNS.get(k, (k, 1.0))[0]: v if k == "outcome" else COLUMNS.get(k, (k, 1.0))[1] * v
-             for k, v in e.items()} for e in report["final_state"]]
+    ends = []
+    for e in report["final_state"]:
+        end = dict(outcome=e["outcome"])
+        for key, value in e.items():
+            if key != "outcome":
+                column, factor = COLUMNS.get(key, (key, 1.0))
+                end[column] = factor * value
+        ends.append(end)
+    return ends
 
 
 def main(argv=None):
