@@ -53,7 +53,8 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     fake_run(sweep, "+ Contact forces", 0, 10, successes=episodes(388))  # 97%: +7.00 over Privileged
     fake_run(sweep, "+ Contact forces", 1, 4)  # partial: not counted
     fake_run(sweep, "Wrist", 0, 10)  # finished, never evaluated: not counted
-    fake_run(sweep, "Fusion - Naive", 0, 10, successes=episodes(360))
+    naive = fake_run(sweep, "Fusion - Naive", 0, 10, successes=episodes(360))
+    (naive / "teacher.json").write_text(json.dumps(dict(sha256="fb727a81" + "0" * 56, env_steps=18_513_920)))
     # CMT succeeds on 20 episodes naive failed and fails on none naive succeeded: a paired difference.
     fake_run(sweep, "Fusion - CMT (lambda_sym=0)", 0, 10, successes=episodes(380))
     out = tmp_path / "out"
@@ -68,6 +69,7 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     assert "| Wrist | not evaluated (1 run started) | 0 of 3 |" in md
     assert "| Wrist + Contact forces | missing |" in md  # its baseline is unevaluated: no parenthesis either
     assert "| Fusion - CMT (lambda_sym=0) vs Fusion - Naive | 400 | 20 | 0 | " in md
+    assert "| 92.97 ± 1.41 | fb727a81 (18.51 M) |" in md and "| 96.74 ± 1.63 |  |" in md  # distilled, or not
     tex = (out / "table1.tex").read_text()
     assert r"Privileged & \checkmark &  &  &  &  & 90.00 $\pm$ 5.00 & 96.74 $\pm$ 1.63 \\" in tex
     assert r"Tactile &  & \checkmark &  &  & \checkmark & missing & 91.41 $\pm$ 5.51 \\" in tex
@@ -93,10 +95,12 @@ def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_
 
     sweep = tmp_path / "sweep"
     runs = [fake_run(sweep, "Wrist", 0, 10, successes=episodes(300)), fake_run(sweep, "Tactile", 1, 4)]
+    (runs[0] / "teacher.json").write_text('{"sha256": "0f"}')  # a distilled run's teacher goes with it
     before = table1.build([sweep], seeds=[0, 1])
     for run in runs:
         archive(run, tmp_path / "archive" / run.name)
     shutil.rmtree(sweep)
+    assert (tmp_path / "archive" / runs[0].name / "teacher.json").read_text() == '{"sha256": "0f"}'
     after = table1.build([tmp_path / "archive"], seeds=[0, 1])
     assert not list((tmp_path / "archive").rglob("*.ckpt"))
     for row_before, row_after in zip(before["rows"], after["rows"], strict=True):

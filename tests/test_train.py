@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
@@ -311,6 +312,10 @@ def test_an_exported_policy_is_small_loads_weights_only_and_evaluates_as_its_che
     assert math.isfinite(student["metrics"]["losses/loss"])
 
 
+def teacher_steps(ckpt) -> int:
+    return int(torch.load(ckpt, weights_only=False)["vitac"]["env_steps"])
+
+
 def test_a_student_with_the_teachers_observations_and_architecture_converges_to_its_actions(tmp_path):
     teacher = train(compose_config(["preset=smoke", "experiment=table1/privileged"], output_dir=tmp_path / "teacher"))
     student = train(compose_config(["preset=smoke", "experiment=table1/privileged", "algo=dagger", "seed=1",
@@ -321,6 +326,10 @@ def test_a_student_with_the_teachers_observations_and_architecture_converges_to_
     assert len(mse) == 12 and max(mse[-3:]) < 0.2 * mse[0], mse
     betas = [float(r["charts/beta"]) for r in _rows(Path(student["metrics_csv"])) if r.get("charts/beta")]
     assert betas[0] == 1.0 and betas[4:] == [0.0] * 8  # the teacher acts first, then the student alone
+    # The run names its teacher by content, so a shipped name that later points elsewhere cannot mislead.
+    record = json.loads((tmp_path / "student" / "teacher.json").read_text())
+    assert record["sha256"] == hashlib.sha256(Path(teacher["checkpoint"]).read_bytes()).hexdigest()
+    assert record["env_steps"] == teacher_steps(teacher["checkpoint"]) > 0
 
 
 def test_a_checkpoint_written_before_the_layout_change_still_loads(tmp_path):

@@ -10,6 +10,7 @@ earlier attempt's file is first kept as `csv/metrics_part<k>.csv`; `read_metrics
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import shutil
 import tempfile
@@ -17,11 +18,12 @@ from pathlib import Path
 
 import yaml
 
-from vitac.utils.checkpoint import load_checkpoint
-from vitac.utils.records import read_whole
+from vitac.utils.checkpoint import load_checkpoint, resolve_checkpoint
+from vitac.utils.records import read_whole, write_json
 
 PART_PREFIX = "metrics_part"
 EVALUATION = Path("checkpoints") / "last.eval.json"  # vitac.evaluate's report on the last checkpoint
+TEACHER_RECORD = "teacher.json"  # a distilled run's teacher by content (vitac.run_config.teacher_record)
 ARCHIVE_RECORD = "run.json"  # in a run's archive (vitac/analysis/archive.py): the iterations its checkpoint held
 MIN_FREE_BYTES = 200 * 2**20  # a run's checkpoints (up to ~14 MB each), metrics and videos, with room to spare
 
@@ -86,6 +88,16 @@ def read_metrics(run: Path, hint: str = "") -> list[dict]:
             rows = [r for r in rows if not r.get("epoch") or int(r["epoch"]) < first]
         rows += new
     return rows
+
+
+def write_teacher_record(out: Path, ckpt: str | Path) -> None:
+    """Which file a distilled run learned from, by content: a shipped name (`pretrained/privileged`) may later point
+    to a better teacher, and the run's config.yaml keeps only the name."""
+    path = resolve_checkpoint(ckpt)
+    checkpoint = load_checkpoint(path, key="teacher_ckpt")
+    env_steps = checkpoint.get("env_steps") or (checkpoint.get("vitac") or {}).get("env_steps")  # exported, or not
+    write_json(Path(out) / TEACHER_RECORD, dict(teacher_ckpt=str(ckpt), file=str(path), env_steps=env_steps,
+                                                sha256=hashlib.sha256(path.read_bytes()).hexdigest()))
 
 
 def run_status(run: Path) -> dict:

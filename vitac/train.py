@@ -16,7 +16,7 @@ from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
 from vitac.run_config import build_policy_from_config, check_modalities, load_teacher, task_settings
-from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics, report_run
+from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics, report_run, write_teacher_record
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.instantiate import instantiate
@@ -53,6 +53,8 @@ def train(cfg: DictConfig) -> dict:
     ckpt_path = check_resume(resume, policy, envs_cfg["num_envs"], resolved) if resume else None
     teacher = load_teacher(cfg, settings)  # {} unless the algorithm distills
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
+    if teacher:
+        write_teacher_record(out, cfg.teacher_ckpt)
     if ckpt_path is not None and Path(resume).resolve() == out.resolve():
         keep_metrics(out)  # resumed in place: Lightning's CSV logger would delete the earlier attempt's metrics
     video_settings = dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS)))

@@ -3,9 +3,9 @@
     python -m vitac.runs archive <run dir> --out docs/data/table1_runs/<row>_seed<k>
 
 Keeps what the report reads (the resolved `config.yaml`, every metrics file of the run's attempts, the evaluation
-of its last checkpoint) and, in `run.json`, the iterations its last checkpoint held, so Table I can be regenerated
-from the repository after the run directory and its checkpoints (150 MB for a camera student) are gone. An
-archive cannot be resumed: it holds no checkpoint.
+of its last checkpoint), a distilled run's `teacher.json` (its teacher by content) and, in `run.json`, the
+iterations its last checkpoint held, so Table I can be regenerated from the repository after the run directory and
+its checkpoints (150 MB for a camera student) are gone. An archive cannot be resumed: it holds no checkpoint.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import argparse
 import shutil
 from pathlib import Path
 
-from vitac.run_dirs import ARCHIVE_RECORD, EVALUATION, completed_iterations, last_checkpoint
+from vitac.run_dirs import ARCHIVE_RECORD, EVALUATION, TEACHER_RECORD, completed_iterations, last_checkpoint
 from vitac.utils.records import write_json
 
 
@@ -27,7 +27,9 @@ def archive(run: Path, out: Path) -> Path:
     if out.exists() and any(out.iterdir()):
         raise SystemExit(f"--out={str(out)!r} is not allowed: it is not empty")
     (out / "csv").mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(run / "config.yaml", out / "config.yaml")
+    for record in ("config.yaml", TEACHER_RECORD):
+        if (run / record).is_file():
+            shutil.copyfile(run / record, out / record)
     for metrics in sorted((run / "csv").glob("metrics*.csv")):  # every attempt's file, as read_metrics joins them
         shutil.copyfile(metrics, out / "csv" / metrics.name)
     if (run / EVALUATION).is_file():

@@ -16,7 +16,7 @@ from pathlib import Path
 from vitac.analysis.compare import wall_clock_hours
 from vitac.analysis.outcomes import discordant, mcnemar_exact
 from vitac.analysis.status import sweep_cells
-from vitac.run_dirs import EVALUATION, read_metrics
+from vitac.run_dirs import EVALUATION, TEACHER_RECORD, read_metrics
 from vitac.utils.records import read_whole
 
 
@@ -57,10 +57,13 @@ def mean_std(values: list[float]) -> tuple[float | None, float | None]:
 
 def evaluated(cell: dict, min_episodes: int) -> dict:
     """The cell with its evaluation (when its run finished and was evaluated on enough episodes) and wall-clock."""
-    cell = dict(cell, success=None, episodes=0, ci95=None, hours=None, steps_to_success=None)
+    cell = dict(cell, success=None, episodes=0, ci95=None, hours=None, steps_to_success=None, teacher=None)
     if cell["run"] is None:
         return cell
     run = Path(cell["run"])
+    if (run / TEACHER_RECORD).is_file():  # a distilled run: which teacher, by content
+        record = read_whole(run / TEACHER_RECORD, json.load, "a distilled run's teacher record")
+        cell["teacher"] = dict(sha256=record["sha256"], env_steps=record.get("env_steps"))
     hours = wall_clock_hours(read_metrics(run))
     cell["hours"] = round(hours[-1][1], 3) if hours else None
     report = run / EVALUATION
@@ -127,14 +130,21 @@ def _budget(row: dict) -> tuple[str, str]:
     return f"{steps:.2f} M", f"{sum(hours) / len(hours):.1f}" if hours else ""
 
 
+def _teachers(row: dict) -> str:
+    """The distinct teachers of a row's counted cells (sha256 prefix, env steps): two mean its seeds are not alike."""
+    teachers = {(c["teacher"]["sha256"][:8], c["teacher"]["env_steps"]) for c in row["seeds"].values()
+                if c["success"] is not None and c.get("teacher")}
+    return ", ".join(f"{sha} ({steps / 1e6:.2f} M)" if steps else sha for sha, steps in sorted(teachers))
+
+
 def markdown(table: dict) -> str:
-    lines = ["| Method | ours: success (%) | seeds | 95% CI of each seed | env steps / seed | hours / seed | paper (%) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| Method | ours: success (%) | seeds | 95% CI of each seed | env steps / seed | hours / seed | paper (%) | "
+             "teacher (its env steps) |", "|---|---|---|---|---|---|---|---|"]
     for row in table["rows"]:
         cis = ", ".join(f"{100 * c['ci95'][0]:.1f}-{100 * c['ci95'][1]:.1f}" for c in row["seeds"].values() if c["ci95"])
         steps, hours = _budget(row)
         lines.append(f"| {row['row']} | {_ours(row)} | {row['seeds_counted']} of {len(table['seeds'])} | {cis} | {steps} | "
-                     f"{hours} | {row['paper']:.2f} ± {row['paper_std']:.2f} |")
+                     f"{hours} | {row['paper']:.2f} ± {row['paper_std']:.2f} | {_teachers(row)} |")
     if table["paired"]:
         lines += ["", "| paired (same episodes) | episodes | only the first succeeded | only the second | exact McNemar p |",
                   "|---|---|---|---|---|"]
