@@ -18,12 +18,12 @@ from pathlib import Path
 
 import yaml
 
-from vitac.utils.checkpoint import load_checkpoint, resolve_checkpoint
+from vitac.utils.checkpoint import checkpoint_env_steps, load_checkpoint, resolve_checkpoint
 from vitac.utils.records import read_whole, write_json
 
 PART_PREFIX = "metrics_part"
 EVALUATION = Path("checkpoints") / "last.eval.json"  # vitac.evaluate's report on the last checkpoint
-TEACHER_RECORD = "teacher.json"  # a distilled run's teacher by content (vitac.run_config.teacher_record)
+TEACHER_RECORD = "teacher.json"  # a distilled run's teacher by content (write_teacher_record)
 ARCHIVE_RECORD = "run.json"  # in a run's archive (vitac/analysis/archive.py): the iterations its checkpoint held
 MIN_FREE_BYTES = 200 * 2**20  # a run's checkpoints (up to ~14 MB each), metrics and videos, with room to spare
 
@@ -94,8 +94,7 @@ def write_teacher_record(out: Path, ckpt: str | Path) -> None:
     """Which file a distilled run learned from, by content: a shipped name (`pretrained/privileged`) may later point
     to a better teacher, and the run's config.yaml keeps only the name."""
     path = resolve_checkpoint(ckpt)
-    checkpoint = load_checkpoint(path, key="teacher_ckpt")
-    env_steps = checkpoint.get("env_steps") or (checkpoint.get("vitac") or {}).get("env_steps")  # exported, or not
+    env_steps = checkpoint_env_steps(load_checkpoint(path, key="teacher_ckpt"))
     write_json(Path(out) / TEACHER_RECORD, dict(teacher_ckpt=str(ckpt), file=str(path), env_steps=env_steps,
                                                 sha256=hashlib.sha256(path.read_bytes()).hexdigest()))
 

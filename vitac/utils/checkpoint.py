@@ -87,6 +87,12 @@ def state_mismatch(own: dict, weights: dict) -> tuple[list, list, list]:
     return missing, unexpected, sorted(k for k in own.keys() & weights.keys() if own[k].shape != weights[k].shape)
 
 
+def checkpoint_env_steps(checkpoint: dict) -> int | None:
+    """The env steps a policy had trained for: an exported file keeps them at the top, a training checkpoint
+    with the rollout loop's state."""
+    return checkpoint.get("env_steps") or (checkpoint.get("vitac") or {}).get("env_steps")
+
+
 def export_policy(path: str | Path, out: str | Path) -> dict:
     """Write the checkpoint's policy as a shipped file: the network and normalizer weights (the value normalizer
     too, for a critic started from it) and the run's config, no optimizer or environment state; readable with
@@ -94,8 +100,7 @@ def export_policy(path: str | Path, out: str | Path) -> dict:
     checkpoint = load_checkpoint(path)
     config = checkpoint["vitac_config"]
     state = {k: v for k, v in checkpoint["state_dict"].items() if k.startswith(("policy.", "value_normalizer."))}
-    env_steps = (checkpoint.get("vitac") or {}).get("env_steps")
-    shipped = dict(vitac_config=config, state_dict=state, env_steps=env_steps, source=str(path))
+    shipped = dict(vitac_config=config, state_dict=state, env_steps=checkpoint_env_steps(checkpoint), source=str(path))
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.save(shipped, out)
