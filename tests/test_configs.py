@@ -214,6 +214,29 @@ def test_cmt_recipe_is_the_privileged_recipe_with_its_rate_capped_at_the_papers(
     assert (cmt.obs.name, cmt.fusion._target_.rsplit(".", 1)[1], cmt.reg.lambda_sym) == ("wrist_tactile", "CrossModalTransformer", 1.0)
 
 
+@pytest.mark.parametrize("row", ["tactile", "fusion_cmt_sym"])
+def test_finetuning_a_student_keeps_what_its_teachers_critic_was_trained_on(row):
+    """finetune=aacd: PPO from the teacher's critic, with the teacher recipe's reward terms, rollouts and noise
+    bounds, the student's own observations, and a starting noise inside the shipped teacher's trained range."""
+    teacher = compose_config(["experiment=recipe/privileged_32envs"])
+    cfg = compose_config([f"experiment=table1/{row}", "finetune=aacd"])
+    assert cfg.algo._target_ == "vitac.algos.ppo.PPO" and cfg.critic_ckpt == "pretrained/privileged"
+    assert cfg.obs == compose_config([f"experiment=table1/{row}"]).obs and cfg.critic == teacher.critic
+    assert cfg.task == teacher.task and cfg.envs == teacher.envs  # the reward and batch the critic learned
+    rollout = ("horizon", "seq_len", "minibatch_size", "mini_epochs")
+    assert {k: cfg.algo[k] for k in rollout} == {k: teacher.algo[k] for k in rollout}
+    assert cfg.algo.lr_schedule == "fixed" and cfg.algo.lr < teacher.algo.lr
+    assert {k: cfg.head[k] for k in ("log_std_mode", "log_std_bound", "log_std_min", "log_std_max")} == {
+        k: teacher.head[k] for k in ("log_std_mode", "log_std_bound", "log_std_min", "log_std_max")}
+    assert list(cfg.init_exclude) == ["policy.head.log_std"]
+    raw = torch.load(Path(CONF).parent / "pretrained" / "privileged.pt", weights_only=False)[
+        "state_dict"]["policy.head.log_std"]
+    trained = cfg.head.log_std_min + (cfg.head.log_std_max - cfg.head.log_std_min) * torch.sigmoid(raw)
+    assert trained.min() <= cfg.head.log_std_init <= trained.max()
+    recipe = compose_config(["experiment=recipe/privileged_dagger_finetune"])
+    assert recipe.algo == cfg.algo and recipe.task == cfg.task and recipe.head == cfg.head
+
+
 @pytest.mark.parametrize("launcher,target", [("joblib_local", "JoblibLauncher"), ("slurm", "SlurmLauncher")])
 def test_launcher_configs_compose(launcher, target):
     from hydra import compose, initialize_config_dir
