@@ -13,7 +13,7 @@ from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
 from tests.conftest import CONF, compose_config
-from vitac.run_config import build_policy_from_config, task_settings
+from vitac.run_config import build_policy_from_config, load_policy, task_settings
 from vitac.tasks import make_task_config
 from vitac.tasks.insertion.config import InsertionConfig
 from vitac.utils.checks import ConfigError
@@ -226,12 +226,11 @@ def test_finetuning_a_student_keeps_what_its_teachers_critic_was_trained_on(row)
     rollout = ("horizon", "seq_len", "minibatch_size", "mini_epochs")
     assert {k: cfg.algo[k] for k in rollout} == {k: teacher.algo[k] for k in rollout}
     assert cfg.algo.lr_schedule == "fixed" and cfg.algo.lr < teacher.algo.lr
-    assert {k: cfg.head[k] for k in ("log_std_mode", "log_std_bound", "log_std_min", "log_std_max")} == {
-        k: teacher.head[k] for k in ("log_std_mode", "log_std_bound", "log_std_min", "log_std_max")}
+    noise = ("log_std_mode", "log_std_bound", "log_std_min", "log_std_max")
+    assert {k: cfg.head[k] for k in noise} == {k: teacher.head[k] for k in noise}
     assert list(cfg.init_exclude) == ["policy.head.log_std"]
-    raw = torch.load(Path(CONF).parent / "pretrained" / "privileged.pt", weights_only=False)[
-        "state_dict"]["policy.head.log_std"]
-    trained = cfg.head.log_std_min + (cfg.head.log_std_max - cfg.head.log_std_min) * torch.sigmoid(raw)
+    shipped, _, _ = load_policy(str(Path(CONF).parent / "pretrained" / "privileged"), key="teacher_ckpt")
+    trained = shipped.head._bounded_log_std(torch.zeros(1, 1))  # param mode: one bounded value per dimension
     assert trained.min() <= cfg.head.log_std_init <= trained.max()
     recipe = compose_config(["experiment=recipe/privileged_dagger_finetune"])
     assert recipe.algo == cfg.algo and recipe.task == cfg.task and recipe.head == cfg.head
