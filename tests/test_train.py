@@ -330,6 +330,14 @@ def test_a_student_with_the_teachers_observations_and_architecture_converges_to_
     record = json.loads((tmp_path / "student" / "teacher.json").read_text())
     assert record["sha256"] == hashlib.sha256(Path(teacher["checkpoint"]).read_bytes()).hexdigest()
     assert record["env_steps"] == teacher_steps(teacher["checkpoint"]) > 0
+    # Distilled further from its own weights, the student acts from the first step and starts where it ended.
+    more = train(compose_config(["preset=smoke", "experiment=table1/privileged", "algo=dagger", "seed=2",
+                                 f"teacher_ckpt={teacher['checkpoint']}", f"init_ckpt={student['checkpoint']}",
+                                 "algo.beta_start=0", "trainer.iterations=2", "eval.every=100"],
+                                output_dir=tmp_path / "more"))
+    rows = [r for r in _rows(Path(more["metrics_csv"])) if r.get("losses/action_mse")]
+    assert [float(r["charts/beta"]) for r in rows] == [0.0, 0.0]
+    assert float(rows[0]["losses/action_mse"]) < 0.5 * mse[0], (rows[0]["losses/action_mse"], mse)
 
 
 def test_a_checkpoint_written_before_the_layout_change_still_loads(tmp_path):
