@@ -50,3 +50,18 @@ def test_a_teacher_whose_weights_do_not_fit_its_config_is_refused_naming_the_key
     torch.save(shipped, tmp_path / "edited.pt")
     with pytest.raises(ValueError, match=r"teacher_ckpt=.*edited.pt.*do not fit.*other shape \['head\.lstm"):
         load_policy(tmp_path / "edited.pt", key="teacher_ckpt")
+
+
+def test_the_longer_distilled_student_continues_the_shipped_one_from_the_same_teacher():
+    config = load_checkpoint("pretrained/cmt_sym_dagger_900")["vitac_config"]
+    assert config["init_ckpt"] == "pretrained/cmt_sym_dagger" and config["algo"]["beta_start"] == 0.0
+    record = json.loads(Path("docs/data/results/cmt_sym_dagger_continued/teacher.json").read_text())
+    assert record["sha256"] == hashlib.sha256(Path("pretrained/privileged.pt").read_bytes()).hexdigest()
+
+
+def test_shipped_policies_load_by_name_from_any_working_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the defaults (teacher_ckpt=pretrained/privileged) must not depend on where one runs
+    assert load_checkpoint("pretrained/privileged")["env_steps"] == 23_052_288
+    (tmp_path / "pretrained").mkdir()
+    torch.save({"state_dict": {}, "vitac_config": {}}, tmp_path / "pretrained" / "privileged.pt")
+    assert load_checkpoint("pretrained/privileged")["state_dict"] == {}  # one's own file of that name wins

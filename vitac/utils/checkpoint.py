@@ -15,12 +15,18 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 from vitac.utils.records import temporary_beside
 
 
+CHECKOUT = Path(__file__).resolve().parents[2]  # where pretrained/ lives in a source checkout (pip install -e .)
+
+
 def resolve_checkpoint(path: str | Path) -> Path:
-    """`path` itself, or a shipped policy named without its suffix (`pretrained/privileged` for its `.pt`)."""
+    """`path` itself, or a shipped policy named without its suffix (`pretrained/privileged` for its `.pt`); a
+    relative `pretrained/...` that is not under the working directory is read from the checkout's, so the
+    defaults work from any directory."""
     path = Path(path)
-    if not path.is_file() and path.with_suffix(".pt").is_file():
-        return path.with_suffix(".pt")
-    return path
+    candidates = [path, path.with_suffix(".pt")]
+    if not path.is_absolute() and path.parts[:1] == ("pretrained",):
+        candidates += [CHECKOUT / c for c in candidates]
+    return next((c for c in candidates if c.is_file()), path)
 
 
 def _numpy_globals() -> list:
