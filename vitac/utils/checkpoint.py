@@ -14,7 +14,6 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 from vitac.utils.records import temporary_beside
 
-
 CHECKOUT = Path(__file__).resolve().parents[2]  # where pretrained/ lives in a source checkout (pip install -e .)
 
 
