@@ -95,7 +95,7 @@ def figures(table: dict, out: Path) -> list[Path]:
             grid_x, grid_y = np.meshgrid(np.linspace(x.min() - 2, x.max() + 2, 60), np.linspace(y.min() - 5, y.max() + 5, 60))
             density = gaussian_kde(np.vstack([x, y]))(np.vstack([grid_x.ravel(), grid_y.ravel()])).reshape(grid_x.shape)
             ax.contour(grid_x, grid_y, density, levels=4, colors=[dots.get_facecolor()[0]], linewidths=0.8)
-    ax.set(xlabel="success rate (%)", ylabel="steps to succeed", title="per trial (one seed each)")
+    ax.set(xlabel="success rate (%)", ylabel="steps to succeed", title="one dot per trained seed")
     if ax.get_legend_handles_labels()[0]:  # no fusion row evaluated yet
         ax.legend(fontsize=7)
     paths.append(_save(fig, out / "success_vs_steps.png"))
