@@ -90,6 +90,17 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     assert "5 done" not in status.stdout and "7 done, 1 partial, 22 missing of 30 cells" in status.stdout
 
 
+def test_the_steps_figure_trials_are_blocks_of_held_out_episodes():
+    success = [1, 0, 1, 1] + [0, 0, 0, 0] + [1, 1, 1, 1] + [1, 0]
+    steps = [100, 120, 140, 90, 100, 110, 120, 95]  # the successes' steps, in episode order, as vitac.evaluate lists them
+    cell = dict(episode_steps=table1.episode_steps(success, steps))
+    assert cell["episode_steps"][:4] == [100, None, 120, 140]
+    # a block without a success has no steps to show; the last, incomplete block is no trial
+    assert table1.trials(cell, 4) == [(75.0, 120.0), (100.0, 105.0)]
+    assert table1.episode_steps(success, steps[:-1]) is None  # lists that do not line up give no trials
+    assert table1.trials(dict(episode_steps=None), 4) == []
+
+
 def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_gone(tmp_path):
     from vitac.analysis.archive import archive
 

@@ -7,9 +7,9 @@ one per row and seed (vitac/analysis/table1.py): a cell counts once its run fini
 evaluated on at least --min-episodes held-out episodes (`checkpoints/last.eval.json`; `--evaluate` runs the
 missing evaluations first, all on the same episodes, so rows are compared episode by episode). Missing and
 unevaluated cells are shown as such, never as zero. Writes table1.md, table1.tex, table1.json and the figures:
-learning curves against env steps, success against steps to succeed per trial for naive, gated and CMT fusion
-with density contours (the paper's Fig. "steps"), and, where the directories hold runs of experiment=screw/*,
-the paper's screw figure (screw.png, screw.json); and the paper's computation table beside ours from the policy
+learning curves against env steps, success against steps to succeed per trial (40 held-out episodes) for naive,
+gated and CMT fusion with density contours (the paper's Fig. "steps"), and, where the directories hold runs of
+experiment=screw/*, the paper's screw figure (screw.png, screw.json); and the paper's computation table beside ours from the policy
 benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by default); with
 `--qual "Naive=<ckpt>" "CMT + sym=<ckpt>"`, both pads' force fields over one held-out episode of each
 (force_fields.png, the paper's Fig. "qual").
@@ -30,6 +30,7 @@ from vitac.utils.records import read_whole, write_json
 EVAL_SEED = 2_000_000  # vitac.evaluate's default: every cell on the same held-out episodes
 # The paper's screw figure (its appendix): the three policies' rows (conf/experiment/screw/*.yaml).
 SCREW_ROWS = {"Privileged": "Screw: privileged", "Wrist-camera": "Screw: wrist", "Tactile": "Screw: tactile"}
+TRIAL_EPISODES = 40  # a trial of the paper's Fig. "steps": a block of held-out episodes, one dot
 FUSION_ROWS = {"Naive": table1.NAIVE, "Gated": "Fusion - Gated (lambda_sym=0)", "CMT": "Fusion - CMT (lambda_sym=0)"}
 
 
@@ -83,19 +84,21 @@ def figures(table: dict, out: Path) -> list[Path]:
     fig, ax = plt.subplots(figsize=(5, 4))
     for name, label in FUSION_ROWS.items():
         row = next(r for r in table["rows"] if r["row"] == label)
-        trials = [(100 * c["success"], c["steps_to_success"]) for c in row["seeds"].values()
-                  if c["success"] is not None and c.get("steps_to_success") is not None]
-        if not trials:
+        cells = [c for c in row["seeds"].values() if c["success"] is not None]
+        points = [p for c in cells for p in table1.trials(c, TRIAL_EPISODES)]
+        if not points:
             continue
-        x, y = np.array(trials, float).T
-        dots = ax.scatter(x, y, s=25, label=name)
-        if len(trials) >= 3 and np.ptp(x) > 0 and np.ptp(y) > 0:  # a density needs spread in both
+        x, y = np.array(points, float).T
+        steps = np.mean([c["steps_to_success"] for c in cells if c.get("steps_to_success") is not None])
+        dots = ax.scatter(x, y, s=12, alpha=0.7, label=f"{name}: {steps:.1f} steps, {len(cells)} seed(s)")
+        if len(points) >= 3 and np.ptp(x) > 0 and np.ptp(y) > 0:  # a density needs spread in both
             from scipy.stats import gaussian_kde
 
             grid_x, grid_y = np.meshgrid(np.linspace(x.min() - 2, x.max() + 2, 60), np.linspace(y.min() - 5, y.max() + 5, 60))
             density = gaussian_kde(np.vstack([x, y]))(np.vstack([grid_x.ravel(), grid_y.ravel()])).reshape(grid_x.shape)
             ax.contour(grid_x, grid_y, density, levels=4, colors=[dots.get_facecolor()[0]], linewidths=0.8)
-    ax.set(xlabel="success rate (%)", ylabel="steps to succeed", title="one dot per trained seed")
+    ax.set(xlabel="success rate (%)", ylabel="steps to succeed",
+           title=f"one dot per trial of {TRIAL_EPISODES} held-out episodes")
     if ax.get_legend_handles_labels()[0]:  # no fusion row evaluated yet
         ax.legend(fontsize=7)
     paths.append(_save(fig, out / "success_vs_steps.png"))

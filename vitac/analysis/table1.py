@@ -72,8 +72,33 @@ def evaluated(cell: dict, min_episodes: int) -> dict:
         if data["episodes"] >= min_episodes:
             cell.update(success=data["success_rate"], episodes=data["episodes"], ci95=data["success_ci95"],
                         eval_seed=data["seed"], episode_success=data.get("episode_success"),
-                        steps_to_success=data.get("steps_to_success_mean"))
+                        steps_to_success=data.get("steps_to_success_mean"),
+                        episode_steps=episode_steps(data.get("episode_success"), data.get("steps_to_success")))
     return cell
+
+
+def episode_steps(success: list[int] | None, steps: list[int] | None) -> list[int | None] | None:
+    """Each episode's steps to succeed (None where it failed): vitac.evaluate lists the steps of the successes in
+    episode order; None when the two lists do not line up (an older report)."""
+    if success is None or steps is None or len(steps) != sum(success):
+        return None
+    taken = iter(steps)
+    return [next(taken) if ok else None for ok in success]
+
+
+def trials(cell: dict, size: int) -> list[tuple[float, float]]:
+    """The paper's trials from one evaluated cell: consecutive blocks of `size` held-out episodes, each as (success
+    %, mean steps to succeed over its successes); a block without a success has no steps and is left out."""
+    steps = cell.get("episode_steps")
+    if not steps:
+        return []
+    points = []
+    for start in range(0, len(steps) - size + 1, size):
+        block = steps[start:start + size]
+        done = [s for s in block if s is not None]
+        if done:
+            points.append((100 * len(done) / size, sum(done) / len(done)))
+    return points
 
 
 def build(dirs: list[Path], seeds: list[int], min_episodes: int = 400) -> dict:
