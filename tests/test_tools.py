@@ -242,6 +242,27 @@ def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_
         pooled([first, dict(more, ckpt="other/last.ckpt")], ["a", "b"])
 
 
+def test_paired_outcomes_compare_steps_to_succeed_on_the_episodes_both_inserted():
+    from scipy.stats import wilcoxon
+
+    from vitac.analysis.outcomes import paired
+
+    def report(success, steps):
+        return dict(seed=2000000, episodes=len(success), randomization_scale=1.0, socket_obs_noise=0.005,
+                    randomize_only=None, episode_success=success, steps_to_success=steps,
+                    final_state=[dict(outcome="inserted" if ok else "stuck part-way in the hole") for ok in success])
+
+    # Episodes 0, 2, 3, 5, 6 are inserted by both; the second is 10, 12, 8, 20, 6 steps slower on them.
+    first = report([1, 1, 1, 1, 0, 1, 1], [100, 90, 110, 120, 105, 95])
+    second = report([1, 0, 1, 1, 1, 1, 1], [110, 122, 128, 80, 125, 101])
+    lines = paired(first, second, ("a", "b")).splitlines()
+    assert lines[0] == "paired: inserted only by a: 1, only by b: 1, exact McNemar two-sided p = 1.000"
+    p = wilcoxon([100, 110, 120, 105, 95], [110, 122, 128, 125, 101]).pvalue
+    assert lines[1] == f"steps to succeed on the 5 episodes both inserted: a 106.0, b 117.2, Wilcoxon signed-rank two-sided p = {p:.3f}"
+    # a report without its steps per success (an older one) gives only the McNemar line
+    assert paired(first, dict(second, steps_to_success=None), ("a", "b")) == lines[0]
+
+
 def test_runs_help_lists_every_command_and_an_unknown_command_names_the_allowed_ones(capsys):
     from vitac import runs
 

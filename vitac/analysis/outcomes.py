@@ -8,7 +8,8 @@ the peg's horizontal offset from the hole axis (mm), its height above the hole f
 (degrees); for the screw task the thread turns still to go, the nut's offset from the bolt's axis and its tilt.
 
 `--paired` compares two reports of the same held-out episodes (same seed, count and randomization): how
-many episodes only the first inserted, how many only the second, and the exact two-sided McNemar p-value.
+many episodes only the first inserted, how many only the second, and the exact two-sided McNemar p-value; then
+the mean steps to succeed of each over the episodes both inserted, with the Wilcoxon signed-rank p-value.
 
 `--pooled` adds up reports of one checkpoint under one setting on different episodes (seed ranges that do
 not overlap, e.g. `episodes=100` then `episodes=300 seed=2000100`): the success rate over all of them with
@@ -54,14 +55,42 @@ def discordant(first: list, second: list) -> tuple[int, int]:
     return only_first, only_second
 
 
+def episode_steps(success: list[int] | None, steps: list[int] | None) -> list[int | None] | None:
+    """Each episode's steps to succeed (None where it failed): vitac.evaluate lists the steps of the successes in
+    episode order; None when the two lists do not line up (an older report)."""
+    if success is None or steps is None or len(steps) != sum(success):
+        return None
+    taken = iter(steps)
+    return [next(taken) if ok else None for ok in success]
+
+
+def steps_compared(first: dict, second: dict, names: tuple[str, str]) -> str | None:
+    """Steps to succeed on the episodes both inserted, with the two-sided Wilcoxon signed-rank p-value (paired by
+    episode); None when a report does not list its steps per success."""
+    a, b = (episode_steps(r.get("episode_success"), r.get("steps_to_success")) for r in (first, second))
+    if a is None or b is None:
+        return None
+    both = [(x, y) for x, y in zip(a, b, strict=True) if x is not None and y is not None]
+    if not both:
+        return None
+    from scipy.stats import wilcoxon
+
+    x, y = np.array(both, float).T
+    p = wilcoxon(x, y).pvalue if np.any(x != y) else 1.0
+    return (f"steps to succeed on the {len(both)} episodes both inserted: {names[0]} {x.mean():.1f}, "
+            f"{names[1]} {y.mean():.1f}, Wilcoxon signed-rank two-sided p = {p:.3f}")
+
+
 def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
     differ = [k for k in SAME_EPISODES if first.get(k) != second.get(k)]
     if differ:
         raise SystemExit(f"--paired: {names[0]} and {names[1]} are not the same episodes ({differ} differ)")
     a, b = ([e["outcome"] == "inserted" for e in final_states(r)] for r in (first, second))
     only_first, only_second = discordant(a, b)
-    return (f"paired: inserted only by {names[0]}: {only_first}, only by {names[1]}: {only_second}, "
+    line = (f"paired: inserted only by {names[0]}: {only_first}, only by {names[1]}: {only_second}, "
             f"exact McNemar two-sided p = {mcnemar_exact(only_first, only_second):.3f}")
+    steps = steps_compared(first, second, names)
+    return line if steps is None else f"{line}\n{steps}"
 
 
 POOLED_SAME = ("ckpt", "randomization_scale", "socket_obs_noise", "randomize_only", "policy")

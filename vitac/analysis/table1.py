@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vitac.analysis.compare import wall_clock_hours
-from vitac.analysis.outcomes import discordant, mcnemar_exact
+from vitac.analysis.outcomes import discordant, episode_steps, mcnemar_exact
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import EVALUATION, TEACHER_RECORD, read_metrics
 from vitac.utils.records import read_whole
@@ -75,15 +75,6 @@ def evaluated(cell: dict, min_episodes: int) -> dict:
                         steps_to_success=data.get("steps_to_success_mean"),
                         episode_steps=episode_steps(data.get("episode_success"), data.get("steps_to_success")))
     return cell
-
-
-def episode_steps(success: list[int] | None, steps: list[int] | None) -> list[int | None] | None:
-    """Each episode's steps to succeed (None where it failed): vitac.evaluate lists the steps of the successes in
-    episode order; None when the two lists do not line up (an older report)."""
-    if success is None or steps is None or len(steps) != sum(success):
-        return None
-    taken = iter(steps)
-    return [next(taken) if ok else None for ok in success]
 
 
 def trials(cell: dict, size: int) -> list[tuple[float, float]]:
