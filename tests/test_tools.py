@@ -245,7 +245,11 @@ def test_pooled_success_adds_disjoint_evaluations_of_one_checkpoint_and_refuses_
 def test_paired_outcomes_compare_steps_to_succeed_on_the_episodes_both_inserted():
     from scipy.stats import wilcoxon
 
-    from vitac.analysis.outcomes import paired
+    from vitac.analysis.outcomes import paired, report_name
+
+    # tables name a run's evaluation by its run, any other report by its file
+    assert report_name(Path("runs/wrist_seed0/checkpoints/last.eval.json")) == "wrist_seed0"
+    assert report_name(Path("docs/data/results/e.json")) == "e"
 
     def report(success, steps):
         return dict(seed=2000000, episodes=len(success), randomization_scale=1.0, socket_obs_noise=0.005,

@@ -144,6 +144,13 @@ def final_states(report: dict) -> list[dict]:
     return ends
 
 
+def report_name(path: Path) -> str:
+    """A report's name in tables: its file's, or for a run's `checkpoints/last.eval.json` the run's."""
+    if path.name == "last.eval.json" and path.parent.name == "checkpoints":
+        return path.parents[1].name
+    return path.stem
+
+
 def main(argv=None):
     stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(prog="python -m vitac.runs outcomes", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -165,9 +172,9 @@ def main(argv=None):
             by_outcome.setdefault(episode["outcome"], []).append(episode)
         for outcome, episodes in sorted(by_outcome.items(), key=lambda item: -len(item[1])):
             cells = [quartiles([e[c] for e in episodes if c in e]) for c in columns]
-            print(f"| {path.stem} | {outcome} | {len(episodes)} | " + " | ".join(cells) + " |")
+            print(f"| {report_name(path)} | {outcome} | {len(episodes)} | " + " | ".join(cells) + " |")
     if args.paired:
-        print("\n" + paired(*reports, names=tuple(path.stem for path in args.reports)))
+        print("\n" + paired(*reports, names=tuple(report_name(path) for path in args.reports)))
     if args.pooled:
-        print("\n" + pooled(reports, [path.stem for path in args.reports]))
+        print("\n" + pooled(reports, [report_name(path) for path in args.reports]))
 
