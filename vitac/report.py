@@ -9,10 +9,10 @@ missing evaluations first, all on the same episodes, so rows are compared episod
 unevaluated cells are shown as such, never as zero. Writes table1.md, table1.tex, table1.json and the figures:
 learning curves against env steps, success against steps to succeed per trial (40 held-out episodes) for naive,
 gated and CMT fusion with density contours (the paper's Fig. "steps"), and, where the directories hold runs of
-experiment=screw/*, the paper's screw figure (screw.png, screw.json); and the paper's computation table beside ours from the policy
-benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by default); with
-`--qual "Naive=<ckpt>" "CMT + sym=<ckpt>"`, both pads' force fields over one held-out episode of each
-(force_fields.png, the paper's Fig. "qual").
+experiment=screw/*, the paper's screw figure (screw.png, screw.json); and the paper's computation table beside
+ours from the policy benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by
+default); with `--qual "Naive=<ckpt>" "CMT + sym=<ckpt>"`, both pads' force fields over one held-out episode of
+each (force_fields.png, the paper's Fig. "qual").
 """
 
 from __future__ import annotations
