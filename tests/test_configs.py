@@ -214,6 +214,17 @@ def test_cmt_recipe_is_the_privileged_recipe_with_its_rate_capped_at_the_papers(
     assert (cmt.obs.name, cmt.fusion._target_.rsplit(".", 1)[1], cmt.reg.lambda_sym) == ("wrist_tactile", "CrossModalTransformer", 1.0)
 
 
+def test_contact_warm_start_is_the_privileged_recipe_with_contact_forces_from_the_shipped_teacher():
+    privileged = compose_config(["experiment=recipe/privileged_32envs"])
+    warm = compose_config(["experiment=recipe/privileged_contact_warm"])
+    assert warm.row == compose_config(["experiment=table1/privileged_contact"]).row == "+ Contact forces"
+    assert warm.obs == compose_config(["experiment=table1/privileged_contact"]).obs
+    assert (warm.algo, warm.task, warm.head, warm.envs) == (privileged.algo, privileged.task, privileged.head,
+                                                             privileged.envs)
+    assert warm.init_ckpt == "pretrained/privileged" and warm.curriculum.start == 1.0
+    assert warm.trainer.iterations * warm.envs.num_envs * warm.algo.horizon == 2_457_600
+
+
 @pytest.mark.parametrize("row", ["tactile", "fusion_cmt_sym"])
 def test_finetuning_a_student_keeps_what_its_teachers_critic_was_trained_on(row):
     """finetune=aacd: PPO from the teacher's critic, with the teacher recipe's reward terms, rollouts and noise
