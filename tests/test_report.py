@@ -22,13 +22,15 @@ ROOT = Path(CONF).parent
 PER_ITERATION = 2 * 16  # the synthetic runs' envs x horizon
 
 
-def fake_run(sweep: Path, row: str, seed: int, done: int, budget: int = 10, successes: list | None = None) -> Path:
+def fake_run(sweep: Path, row: str, seed: int, done: int, budget: int = 10, successes: list | None = None,
+             init_ckpt: str | None = None) -> Path:
     """A run directory as training and vitac.evaluate leave it: config, metrics, a checkpoint holding `done`
     iterations, and (given `successes`, one 0/1 per episode) an evaluation of its last checkpoint."""
     run = sweep / f"{row.replace(' ', '_')},seed={seed}"
     (run / "csv").mkdir(parents=True)
     (run / "checkpoints").mkdir()
-    config = dict(row=row, seed=seed, trainer=dict(iterations=budget), envs=dict(num_envs=2), algo=dict(horizon=16))
+    config = dict(row=row, seed=seed, trainer=dict(iterations=budget), envs=dict(num_envs=2), algo=dict(horizon=16),
+                  init_ckpt=init_ckpt)
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     rows = ["epoch,charts/env_steps,charts/SPS,eval/success_rate"]
     rows += [f"{i},{(i + 1) * PER_ITERATION},{PER_ITERATION / 36.0},0.5" for i in range(done)]  # 36 s an iteration
@@ -50,7 +52,8 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     sweep = tmp_path / "sweep"
     for seed, k in enumerate((380, 360, 340)):  # 95, 90, 85%: 90.00 +- 5.00
         fake_run(sweep, "Privileged", seed, 10, successes=episodes(k))
-    fake_run(sweep, "+ Contact forces", 0, 10, successes=episodes(388))  # 97%: +7.00 over Privileged
+    fake_run(sweep, "+ Contact forces", 0, 10, successes=episodes(388),  # 97%: +7.00 over Privileged
+             init_ckpt="pretrained/privileged")
     fake_run(sweep, "+ Contact forces", 1, 4)  # partial: not counted
     fake_run(sweep, "Wrist", 0, 10)  # finished, never evaluated: not counted
     naive = fake_run(sweep, "Fusion - Naive", 0, 10, successes=episodes(360))
@@ -70,6 +73,7 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     assert "| Wrist + Contact forces | missing |" in md  # its baseline is unevaluated: no parenthesis either
     assert "| Fusion - CMT (lambda_sym=0) vs Fusion - Naive | 400 | 20 | 0 | " in md
     assert "| 92.97 ± 1.41 | fb727a81 (18.51 M) |" in md and "| 96.74 ± 1.63 |  |" in md  # distilled, or not
+    assert "| 98.96 ± 0.83 | warm start: pretrained/privileged |" in md  # its env steps add to the checkpoint's
     tex = (out / "table1.tex").read_text()
     assert r"Privileged & \checkmark &  &  &  &  & 90.00 $\pm$ 5.00 & 96.74 $\pm$ 1.63 \\" in tex
     assert r"Tactile &  & \checkmark &  &  & \checkmark & missing & 91.41 $\pm$ 5.51 \\" in tex

@@ -101,7 +101,7 @@ def write_teacher_record(out: Path, ckpt: str | Path) -> None:
 
 def run_status(run: Path) -> dict:
     """A run directory's (or its archive's) row, seed, status (done, partial, missing: no checkpoint yet), completed
-    iterations of its budget and env steps."""
+    iterations of its budget, env steps, and the checkpoint it was warm-started from (None if it started fresh)."""
     cfg = read_whole(Path(run) / "config.yaml", yaml.safe_load)
     iterations = int(cfg["trainer"]["iterations"])
     if last_checkpoint(run).is_file() or not (Path(run) / ARCHIVE_RECORD).is_file():
@@ -111,7 +111,7 @@ def run_status(run: Path) -> dict:
     steps = done * int(cfg["envs"]["num_envs"]) * int(cfg["algo"]["horizon"])
     status = "done" if done >= iterations else "partial" if done else "missing"
     return dict(run=str(run), row=cfg.get("row"), seed=cfg.get("seed"), status=status, iterations=done,
-                budget=iterations, env_steps=steps)
+                budget=iterations, env_steps=steps, init_ckpt=cfg.get("init_ckpt"))
 
 
 def report_run(out: Path, metrics: dict, env_steps: int, preset: str, wandb: bool) -> dict:

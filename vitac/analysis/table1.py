@@ -147,21 +147,24 @@ def _budget(row: dict) -> tuple[str, str]:
     return f"{steps:.2f} M", f"{sum(hours) / len(hours):.1f}" if hours else ""
 
 
-def _teachers(row: dict) -> str:
-    """The distinct teachers of a row's counted cells (sha256 prefix, env steps): two mean its seeds are not alike."""
-    teachers = {(c["teacher"]["sha256"][:8], c["teacher"]["env_steps"]) for c in row["seeds"].values()
-                if c["success"] is not None and c.get("teacher")}
-    return ", ".join(f"{sha} ({steps / 1e6:.2f} M)" if steps else sha for sha, steps in sorted(teachers))
+def _origins(row: dict) -> str:
+    """The distinct teachers of a row's counted cells (sha256 prefix, env steps), or the checkpoints they were
+    warm-started from (their env steps are not in the cell's): two mean its seeds are not alike."""
+    counted = [c for c in row["seeds"].values() if c["success"] is not None]
+    teachers = {(c["teacher"]["sha256"][:8], c["teacher"]["env_steps"]) for c in counted if c.get("teacher")}
+    starts = {f"warm start: {c['init_ckpt']}" for c in counted if c.get("init_ckpt")}
+    return ", ".join([f"{sha} ({steps / 1e6:.2f} M)" if steps else sha for sha, steps in sorted(teachers)] +
+                     sorted(starts))
 
 
 def markdown(table: dict) -> str:
     lines = ["| Method | ours: success (%) | seeds | 95% CI of each seed | env steps / seed | hours / seed | paper (%) | "
-             "teacher (its env steps) |", "|---|---|---|---|---|---|---|---|"]
+             "teacher (its env steps) or warm start |", "|---|---|---|---|---|---|---|---|"]
     for row in table["rows"]:
         cis = ", ".join(f"{100 * c['ci95'][0]:.1f}-{100 * c['ci95'][1]:.1f}" for c in row["seeds"].values() if c["ci95"])
         steps, hours = _budget(row)
         lines.append(f"| {row['row']} | {_ours(row)} | {row['seeds_counted']} of {len(table['seeds'])} | {cis} | {steps} | "
-                     f"{hours} | {row['paper']:.2f} ± {row['paper_std']:.2f} | {_teachers(row)} |")
+                     f"{hours} | {row['paper']:.2f} ± {row['paper_std']:.2f} | {_origins(row)} |")
     if table["paired"]:
         lines += ["", "| paired (same episodes) | episodes | only the first succeeded | only the second | exact McNemar p |",
                   "|---|---|---|---|---|"]
