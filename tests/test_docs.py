@@ -33,3 +33,27 @@ def test_ruff_passes():
     result = subprocess.run([sys.executable, "-m", "ruff", "check", "vitac", "benchmarks", "tests"], cwd=ROOT,
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def _results_table_rows() -> dict[str, list[str]]:
+    """{row label: its cells} of docs/results.md's Table I (the first table of the page)."""
+    lines = (ROOT / "docs" / "results.md").read_text().split("## Table I", 1)[1].split("\n\n", 2)[1].splitlines()
+    return {cells[0]: cells for cells in ([c.strip() for c in line.strip("|").split("|")] for line in lines[2:])}
+
+
+def test_results_page_shows_table_one_as_the_report_wrote_it():
+    """Each row of docs/results.md's Table I carries docs/data/table1.json's per-seed successes, mean and seed count,
+    so a hand edit cannot drift from the report (`python -m vitac.report docs/data/table1_runs`)."""
+    import json
+
+    rows = _results_table_rows()
+    for row in json.loads((ROOT / "docs" / "data" / "table1.json").read_text())["rows"]:
+        label = row["row"].split(" (lambda_sym")[0]
+        [cells] = [cells for name, cells in rows.items() if name == label or name.startswith(f"{label} (shipped")]
+        done = [s for s in row["seeds"].values() if s["status"] == "done" and s.get("success") is not None]
+        assert cells[3] == str(row["seeds_counted"]) == str(len(done)), label
+        ours = cells[2]
+        for seed in done:
+            assert f"{100 * seed['success']:.1f}%" in ours, (label, seed["seed"], ours)
+        if len(done) > 1:
+            assert ours.startswith(f"{row['mean']:.1f} ± {row['std']:.1f}:"), (label, ours)
