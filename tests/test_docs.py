@@ -56,4 +56,4 @@ def test_results_page_shows_table_one_as_the_report_wrote_it():
         for seed in done:
             assert f"{100 * seed['success']:.1f}%" in ours, (label, seed["seed"], ours)
         if len(done) > 1:
-            assert ours.startswith(f"{row['mean']:.1f} ± {row['std']:.1f}:"), (label, ours)
+            assert ours.startswith(f"{row['mean']:.2f} ± {row['std']:.2f}:"), (label, ours)
