@@ -20,11 +20,16 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
 
 
 def expected_rows(pattern: str) -> list[str]:
-    """The `row` labels of the experiments matching `pattern` (relative to conf/experiment), in name order."""
+    """The `row` labels of the experiments matching `pattern` (relative to conf/experiment): Table I's rows in the
+    paper's order, any others after them in name order."""
+    from vitac.analysis.table1 import ROWS  # imported here: table1 builds on this module
+
     files = sorted((CONF / "experiment").glob(f"{pattern}.yaml"))
     if not files:
         raise SystemExit(f"--experiments={pattern!r} is not allowed: no conf/experiment/{pattern}.yaml")
-    return [yaml.safe_load(f.read_text()).get("row") or f.stem for f in files]
+    rows = [yaml.safe_load(f.read_text()).get("row") or f.stem for f in files]
+    paper_order = {r.label: i for i, r in enumerate(ROWS)}
+    return sorted(rows, key=lambda row: paper_order.get(row, len(paper_order)))  # stable: the others keep name order
 
 
 def sweep_cells(dirs: list[Path], rows: list[str], seeds: list[int]) -> dict:
