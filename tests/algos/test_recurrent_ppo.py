@@ -149,9 +149,11 @@ def test_sequence_minibatch_layout_and_coverage():
     t_idx, e_idx = torch.meshgrid(torch.arange(8), torch.arange(4), indexing="ij")
     buf.obs["x"] = (1000 * e_idx + t_idx).float()[..., None]
     buf.advantages, buf.returns = torch.zeros(8, 4), torch.zeros(8, 4)
-    buf.chunk_states = [(torch.zeros(1, 4, 2), torch.zeros(1, 4, 2)) for _ in range(2)]
+    buf.chunk_states = [(torch.zeros(2, 4, 3), torch.zeros(2, 4, 3)) for _ in range(2)]  # a 2-layer LSTM's
     seen = []
     for mb in buf.minibatches(8, torch.Generator().manual_seed(0)):
+        # cuDNN's LSTM (the update on a GPU) refuses a strided initial state: "rnn: hx is not contiguous"
+        assert all(s.shape == (2, 2, 3) and s.is_contiguous() for s in mb["state"])
         x = mb["obs"]["x"][..., 0]  # (L, B)
         env = torch.div(x, 1000, rounding_mode="floor")
         assert torch.all(env == env[0])  # one env per column

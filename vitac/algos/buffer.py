@@ -65,7 +65,8 @@ def chunk_minibatches(obs: dict, steps: dict, fields, order: torch.Tensor, per_b
         rollout, chunk, env = ids // per_rollout, ids % per_rollout // n, ids % n
         index = (rollout[None, :].expand(L, -1), chunk[None, :] * L + torch.arange(L)[:, None],
                  env[None, :].expand(L, -1))  # (L, B) rollout, time, env
-        state = tuple(steps[k][rollout, chunk, :, env].transpose(0, 1) for k in ("h", "c"))  # (layers, B, H)
+        # (layers, B, H), contiguous: cuDNN's LSTM refuses a strided initial state ("rnn: hx is not contiguous")
+        state = tuple(steps[k][rollout, chunk, :, env].transpose(0, 1).contiguous() for k in ("h", "c"))
         yield dict(obs={k: v[index] for k, v in obs.items()}, starts=steps["starts"][index], state=state,
                    **{name: steps[name][index] for name in fields})
 
