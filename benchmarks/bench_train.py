@@ -34,6 +34,10 @@ DAGGER_1X256_KEPT4 = DAGGER + ["algo.mini_epochs=1", "algo.dataset_rollouts=4"]
 # The same 1,024 transitions an update in 16 minibatches of 64 (the default's 16 gradient steps, a quarter of its
 # samples).
 DAGGER_1X64_KEPT4 = DAGGER_1X256_KEPT4 + ["algo.minibatch_size=64"]
+# The image rows force their precision (the default, auto, picks float32 on CPUs without native bfloat16), so that
+# bfloat16 vs float32 means the same on every machine; docs/benchmarks.md measured bfloat16 rows.
+CMT_SYM = ["obs=wrist_tactile", "fusion=cmt", "reg=sym"]
+CMT_SYM_BF16 = CMT_SYM + ["encoder.image.bf16=true"]
 CONFIGS = {"privileged": PRIVILEGED,
            "privileged_workers_only": PRIVILEGED + ["envs.step_in_main=false"],
            "privileged_horizon128": PRIVILEGED + ["algo.horizon=128", "algo.minibatch_size=512"],
@@ -41,15 +45,13 @@ CONFIGS = {"privileged": PRIVILEGED,
            # iteration from twice the environments.
            "privileged_horizon512": PRIVILEGED + ["algo.horizon=512", "algo.minibatch_size=2048"],
            "privileged_32envs_horizon256": PRIVILEGED + ["envs.num_envs=32", "algo.horizon=256", "algo.minibatch_size=2048"],
-           "wrist_tactile_cmt_sym": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo=ppo"],
-           "wrist_tactile_cmt_sym_workers_only": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo=ppo",
-                                                  "envs.step_in_main=false"],
-           "wrist_tactile_cmt_sym_fp32": ["obs=wrist_tactile", "fusion=cmt", "reg=sym", "algo=ppo",
-                                          "encoder.image.bf16=false"],
-           "wrist_tactile_cmt_sym_dagger": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER,
-           "wrist_tactile_cmt_sym_dagger_1x1024": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER_1X1024,
-           "wrist_tactile_cmt_sym_dagger_1x256_kept4": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER_1X256_KEPT4,
-           "wrist_tactile_cmt_sym_dagger_1x64_kept4": ["obs=wrist_tactile", "fusion=cmt", "reg=sym"] + DAGGER_1X64_KEPT4}
+           "wrist_tactile_cmt_sym": CMT_SYM_BF16 + ["algo=ppo"],
+           "wrist_tactile_cmt_sym_workers_only": CMT_SYM_BF16 + ["algo=ppo", "envs.step_in_main=false"],
+           "wrist_tactile_cmt_sym_fp32": CMT_SYM + ["encoder.image.bf16=false", "algo=ppo"],
+           "wrist_tactile_cmt_sym_dagger": CMT_SYM_BF16 + DAGGER,
+           "wrist_tactile_cmt_sym_dagger_1x1024": CMT_SYM_BF16 + DAGGER_1X1024,
+           "wrist_tactile_cmt_sym_dagger_1x256_kept4": CMT_SYM_BF16 + DAGGER_1X256_KEPT4,
+           "wrist_tactile_cmt_sym_dagger_1x64_kept4": CMT_SYM_BF16 + DAGGER_1X64_KEPT4}
 
 
 def untrained_teacher(out: str) -> str:

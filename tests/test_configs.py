@@ -265,7 +265,7 @@ def test_launcher_configs_compose(launcher, target):
     ("head.layers=0", r"head\.layers=0 is not allowed: expected a positive integer"),
     ("encoder.image.kernels=[8,4]", r"encoder\.image\.kernels=\[8, 4\] is not allowed: expected a list of 3 positive"),
     ("encoder.image.channels=[32,64,0]", r"encoder\.image\.channels=\[32, 64, 0\] is not allowed"),
-    ("encoder.image.bf16=maybe", r"encoder\.image\.bf16='maybe' is not allowed: expected true or false"),
+    ("encoder.image.bf16=maybe", r"encoder\.image\.bf16='maybe' is not allowed: expected true, false or auto"),
     ("fusion.dropout=1.5", r"fusion\.dropout=1\.5 is not allowed: expected a number in \[0, 1\)"),
     ("task.taxel_rows=4", r"encoder\.image\.kernels=\[8, 4, 3\] is not allowed with an observation of shape \(3, 4, 32\)"
                           r".*task\.taxel_rows"),

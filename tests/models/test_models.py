@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from tests.conftest import compose_config
+from vitac.models import encoders
 from vitac.models.encoders import ConvSoftArgmaxEncoder, SpatialSoftArgmax
 from vitac.models.fusion import CrossModalTransformer, GatedFusion, NaiveFusion
 from vitac.models.head import RecurrentActorHead
@@ -54,6 +55,22 @@ def test_bf16_encoder_runs_its_convolutions_in_bfloat16_and_stays_close_to_float
     assert torch.allclose(torch.cat([enc(x[i:i + 8]) for i in range(0, 32, 8)]), out, atol=1e-6)
     out.sum().backward()
     assert enc.conv[0].weight.grad is not None and enc.conv[0].weight.grad.dtype == torch.float32
+
+
+@pytest.mark.parametrize("extensions,expected", [([], torch.float32), (["avx512_bf16"], torch.bfloat16),
+                                                 (["amx_bf16"], torch.bfloat16)])
+def test_auto_bf16_follows_the_cpus_native_bfloat16(monkeypatch, extensions, expected):
+    # Emulated bfloat16 convolutions ran ten times slower than float32 on an AVX2-only CPU: auto must not pick them.
+    monkeypatch.setattr(encoders, "describe_cpu", lambda: dict(model="test", cores=2, bfloat16=extensions))
+    encoders.native_bfloat16.cache_clear()
+    try:
+        enc = ConvSoftArgmaxEncoder((3, 32, 32), bf16="auto")
+        dtypes = []
+        enc.conv[-1].register_forward_hook(lambda module, inputs, output: dtypes.append(output.dtype))
+        enc(torch.rand(2, 3, 32, 32))
+        assert dtypes == [expected]
+    finally:
+        encoders.native_bfloat16.cache_clear()
 
 
 def test_spatial_softargmax_finds_the_peak():

@@ -2,10 +2,23 @@
 
 from __future__ import annotations
 
+import functools
+
 import torch
 from torch import nn
 
 from vitac.utils.checks import check_flag, check_widths
+from vitac.utils.records import describe_cpu
+
+
+@functools.cache
+def native_bfloat16(device_type: str) -> bool:
+    """Whether `device_type` computes in bfloat16 natively: a CUDA GPU that supports it, or a CPU with
+    AVX512-BF16 or AMX. Elsewhere bfloat16 convolutions are emulated, ten times slower than float32 on one
+    AVX2-only CPU (README)."""
+    if device_type == "cuda":
+        return torch.cuda.is_bf16_supported()
+    return device_type == "cpu" and bool(describe_cpu()["bfloat16"])
 
 
 class SpatialSoftArgmax(nn.Module):
@@ -36,16 +49,18 @@ class ConvSoftArgmaxEncoder(nn.Module):
     Args:
         in_shape: (C, H, W) of the input image.
         channels, kernels, strides: the three conv layers.
-        bf16: run the convolutions under bfloat16 autocast (TacSL trains with mixed precision). The convs are
-            most of an image policy's arithmetic; on CPUs with AVX512-BF16 (or AMX) they run about twice as
-            fast. Weights, gradients and the soft-argmax stay float32.
+        bf16: run the convolutions under bfloat16 autocast (TacSL trains with mixed precision): true, false, or
+            "auto" for wherever the device computes bfloat16 natively (`native_bfloat16`). The convs are most of
+            an image policy's arithmetic; on CPUs with AVX512-BF16 (or AMX) they run about twice as fast.
+            Weights, gradients and the soft-argmax stay float32.
     """
 
-    def __init__(self, in_shape, channels=(32, 64, 64), kernels=(8, 4, 3), strides=(2, 1, 1), bf16: bool = False):
+    def __init__(self, in_shape, channels=(32, 64, 64), kernels=(8, 4, 3), strides=(2, 1, 1),
+                 bf16: bool | str = False):
         super().__init__()
         for name, value in (("channels", channels), ("kernels", kernels), ("strides", strides)):
             check_widths(f"encoder.image.{name}", value, len(channels) if name != "channels" else None)
-        check_flag("encoder.image.bf16", bf16)
+        check_flag("encoder.image.bf16", bf16, auto=True)
         layers, c = [], in_shape[0]
         h, w = in_shape[1], in_shape[2]
         for out, k, s in zip(channels, kernels, strides, strict=True):
@@ -67,7 +82,8 @@ class ConvSoftArgmaxEncoder(nn.Module):
         if tuple(x.shape[1:]) != self.in_shape:
             raise ValueError(f"image of shape {tuple(x.shape[1:])} does not fit an encoder built for {self.in_shape}")
         x = x.float() / 255.0 if x.dtype == torch.uint8 else x.float()  # camera pixels arrive as uint8
-        with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=self.bf16):
+        bf16 = native_bfloat16(x.device.type) if self.bf16 == "auto" else self.bf16
+        with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=bf16):
             features = self.conv(x.contiguous(memory_format=torch.channels_last))
         return self.softargmax(features.float())
 

@@ -28,9 +28,10 @@ def check_int(key: str, value, minimum: int) -> None:
         refuse(key, value, "a positive integer" if minimum == 1 else f"an integer >= {minimum}")
 
 
-def check_flag(key: str, value) -> None:
-    if not isinstance(value, bool):
-        refuse(key, value, "true or false")
+def check_flag(key: str, value, auto: bool = False) -> None:
+    """A boolean; or with `auto`, also the string "auto" (the code picks, e.g. from the hardware)."""
+    if not isinstance(value, bool) and not (auto and value == "auto"):
+        refuse(key, value, "true, false or auto" if auto else "true or false")
 
 
 def usable_cores() -> int:
