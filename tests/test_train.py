@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
+import logging
 import math
 import os
 import signal
@@ -17,6 +18,7 @@ import torch
 
 from tests.conftest import CONF, compose_config
 from vitac.evaluate import evaluate
+from vitac.models.encoders import native_bfloat16
 from vitac.models.normalizer import RunningNormalizer
 from vitac.run_config import build_policy_from_config, load_policy, task_settings
 from vitac.tasks.insertion.config import InsertionConfig
@@ -38,8 +40,11 @@ def _losses(run):
             for r in rows]
 
 
-def test_smoke_run_writes_checkpoint_and_metrics_and_logs_every_loss_term(tmp_path):
+def test_smoke_run_writes_checkpoint_and_metrics_and_logs_every_loss_term(tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="vitac.train")
     run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
+    precision = "bfloat16" if native_bfloat16("cpu") else "float32"  # the default, auto, follows the CPU
+    assert f"image convolutions in {precision} (encoder.image.bf16=auto)" in caplog.messages
     # last.ckpt has one writer (no Lightning "last-v1.ckpt" beside it), periodic ones are named by iteration
     assert sorted(p.name for p in (tmp_path / "run" / "checkpoints").iterdir()) == [
         "best.ckpt", "iter_00001.ckpt", "iter_00002.ckpt", "last.ckpt"]

@@ -15,6 +15,7 @@ from vitac.algos.callbacks import run_callbacks
 from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
 from vitac.algos.weights import check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
+from vitac.models.encoders import ConvSoftArgmaxEncoder
 from vitac.run_config import build_policy_from_config, check_modalities, load_teacher, task_settings
 from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics, report_run, write_teacher_record
 from vitac.tasks import make_task_config
@@ -74,6 +75,10 @@ def train(cfg: DictConfig) -> dict:
                         log_every_n_steps=1, num_sanity_val_steps=0, deterministic=cfg.trainer.deterministic,
                         plugins=[PortableCheckpointIO()])
     log.info("policy and update on %s; environments on CPU", trainer.strategy.root_device)
+    images = [e for e in policy.encoders.values() if isinstance(e, ConvSoftArgmaxEncoder)]
+    if images:  # all built from encoder.image
+        log.info("image convolutions in %s (encoder.image.bf16=%s)",
+                 "bfloat16" if images[0].uses_bf16(trainer.strategy.root_device.type) else "float32", images[0].bf16)
     envs = make_envs(settings, seed=cfg.seed or 0)
     log.info("env: %d envs in %d groups (the main process steps one: %s), observations %s", num_envs,
              max(envs_cfg["num_workers"], 1), envs_cfg["step_in_main"] or not envs_cfg["num_workers"],

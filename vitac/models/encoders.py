@@ -78,12 +78,15 @@ class ConvSoftArgmaxEncoder(nn.Module):
         self.out_dim = 2 * channels[-1]
         self.bf16 = bf16
 
+    def uses_bf16(self, device_type: str) -> bool:
+        """Whether the convolutions run in bfloat16 on `device_type` ("cpu", "cuda")."""
+        return native_bfloat16(device_type) if self.bf16 == "auto" else self.bf16
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if tuple(x.shape[1:]) != self.in_shape:
             raise ValueError(f"image of shape {tuple(x.shape[1:])} does not fit an encoder built for {self.in_shape}")
         x = x.float() / 255.0 if x.dtype == torch.uint8 else x.float()  # camera pixels arrive as uint8
-        bf16 = native_bfloat16(x.device.type) if self.bf16 == "auto" else self.bf16
-        with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=bf16):
+        with torch.autocast(x.device.type, dtype=torch.bfloat16, enabled=self.uses_bf16(x.device.type)):
             features = self.conv(x.contiguous(memory_format=torch.channels_last))
         return self.softargmax(features.float())
 
