@@ -1,6 +1,6 @@
 """The paper's computation table for the whole policy (encoders + fusion + LSTM head), naive / gated / CMT.
 
-    python benchmarks/bench_policy.py [--passes 1000] [--threads 2] [--json docs/data/bench_policy.json]
+    python benchmarks/bench_policy.py [--passes 1000] [--threads 2] [--json docs/data/bench_policy.json] [overrides...]
 
 Latency: mean of `passes` single-step forward passes (inference mode) after warm-up, batch 1 and 256; throughput
 = 1000 / latency (ms). Memory: parameters + buffers, plus the peak memory torch allocates during one
@@ -35,8 +35,9 @@ def policy_from_overrides(overrides: list):
     return build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 
-def make_policy(fusion: str):
-    return policy_from_overrides(["obs=wrist_tactile", f"fusion={fusion}", "reg=sym", "critic=none"]).eval()
+def make_policy(fusion: str, overrides: list = ()):
+    return policy_from_overrides(["obs=wrist_tactile", f"fusion={fusion}", "reg=sym", "critic=none",
+                                  *overrides]).eval()
 
 
 def inputs(batch: int, device):
@@ -88,6 +89,7 @@ def main():
     parser.add_argument("--passes", type=int_at_least(1), default=1000)
     parser.add_argument("--threads", type=int_at_least(1), default=2)
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides for every policy (encoder.image.bf16=true)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     devices = [torch.device("cpu")] + ([torch.device("cuda")] if torch.cuda.is_available() else [])
@@ -95,7 +97,7 @@ def main():
     for device in devices:
         for fusion in ("naive", "gated", "cmt"):
             torch.manual_seed(0)
-            policy = make_policy(fusion).to(device)
+            policy = make_policy(fusion, args.overrides).to(device)
             lat1 = latency_ms(policy, 1, args.passes, device)
             lat256 = latency_ms(policy, 256, max(args.passes // 20, 20), device)
             weights, activations = memory_mb(policy, device)
@@ -118,7 +120,7 @@ def main():
               f"{r['memory_mb']:.2f} ({r['weights_mb']:.2f} weights + {r['peak_forward_mb']:.2f} forward) | "
               f"{r['paper_latency_ms']} / {r['paper_memory_mb']} / {r['paper_fps']} |")
     if args.json:
-        meta = dict(threads=args.threads, passes=args.passes, torch=torch.__version__)
+        meta = dict(threads=args.threads, passes=args.passes, overrides=args.overrides, torch=torch.__version__)
         write_record(args.json, meta=meta, rows=rows)
 
 

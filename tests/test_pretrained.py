@@ -65,3 +65,11 @@ def test_shipped_policies_load_by_name_from_any_working_directory(tmp_path, monk
     (tmp_path / "pretrained").mkdir()
     torch.save({"state_dict": {}, "vitac_config": {}}, tmp_path / "pretrained" / "privileged.pt")
     assert load_checkpoint("pretrained/privileged")["state_dict"] == {}  # one's own file of that name wins
+
+
+def test_a_policy_stored_with_bfloat16_loads_with_the_machines_precision():
+    # Shipped before `auto` existed with bf16=true, which CPUs without native bfloat16 emulate seven times slower.
+    assert load_checkpoint("pretrained/cmt_sym_dagger")["vitac_config"]["encoder"]["image"]["bf16"] is True
+    policy, cfg, _ = load_policy("pretrained/cmt_sym_dagger")
+    assert {policy.encoders[k].bf16 for k in ("wrist", "tactile_left", "tactile_right")} == {"auto"}
+    assert cfg.encoder.image.bf16 == "auto"

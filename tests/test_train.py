@@ -360,3 +360,4 @@ def test_a_checkpoint_written_before_the_layout_change_still_loads(tmp_path):
     new, _, _ = load_policy(run["checkpoint"])
     assert old.fusion is None and not old.uses_symmetry and settings["observations"][-1] == "critic_state"
     assert all(torch.equal(a, b) for a, b in zip(old.state_dict().values(), new.state_dict().values(), strict=True))
+
