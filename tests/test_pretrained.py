@@ -68,7 +68,7 @@ def test_shipped_policies_load_by_name_from_any_working_directory(tmp_path, monk
 
 
 def test_a_policy_stored_with_bfloat16_loads_with_the_machines_precision():
-    # Shipped before `auto` existed with bf16=true, which CPUs without native bfloat16 emulate seven times slower.
+    # Shipped before `auto` existed with bf16=true, which CPUs without native bfloat16 emulate 6-7x slower.
     assert load_checkpoint("pretrained/cmt_sym_dagger")["vitac_config"]["encoder"]["image"]["bf16"] is True
     policy, cfg, _ = load_policy("pretrained/cmt_sym_dagger")
     assert {policy.encoders[k].bf16 for k in ("wrist", "tactile_left", "tactile_right")} == {"auto"}

@@ -56,7 +56,7 @@ def load_policy(ckpt: str | Path, key: str = "ckpt"):
         cfg.critic._target_ = "vitac.models.critic.StateCritic"
     if "bf16" in cfg.encoder.image:
         # Precision is the machine's to pick, not the policy's: runs before `auto` stored true, which emulates
-        # bfloat16 on CPUs without it, seven times slower at inference (features differ by about 1e-5).
+        # bfloat16 on CPUs without it, 6-7x slower at inference (features differ by about 1e-5).
         cfg.encoder.image.bf16 = "auto"
     settings = task_settings(cfg)
     task_config = make_task_config(settings)
