@@ -67,7 +67,7 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     assert "| cmt | " in (out / "computation.md").read_text() and "6.52 / 21.45 / 153.37" in (out / "computation.md").read_text()
     md = (out / "table1.md").read_text()
     assert "| Privileged | 90.00 ± 5.00 | 3 of 3 | " in md
-    assert "| + Contact forces | 97.00 (+7.00) | 1 of 3 | " in md  # one seed: no standard deviation to show
+    assert "| + Contact forces | 97.00 (+7.00) | 1 of 3, 1 partial | " in md  # one seed: no standard deviation
     assert "| Tactile | missing | 0 of 3 |" in md
     assert "| Wrist | not evaluated (1 run started) | 0 of 3 |" in md
     assert "| Wrist + Contact forces | missing |" in md  # its baseline is unevaluated: no parenthesis either

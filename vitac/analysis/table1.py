@@ -138,6 +138,12 @@ def _ours(row: dict, tex: bool = False) -> str:
     return text + (f" ({row['improvement']:+.2f})" if row["improvement"] is not None else "")
 
 
+def _seeds(row: dict, expected: int) -> str:
+    """Seeds counted of those expected, and how many more are part-way (a run resumable across sittings)."""
+    partial = sum(c["status"] == "partial" for c in row["seeds"].values())
+    return f"{row['seeds_counted']} of {expected}" + (f", {partial} partial" if partial else "")
+
+
 def _budget(row: dict) -> tuple[str, str]:
     counted = [c for c in row["seeds"].values() if c["success"] is not None]
     if not counted:
@@ -163,7 +169,7 @@ def markdown(table: dict) -> str:
     for row in table["rows"]:
         cis = ", ".join(f"{100 * c['ci95'][0]:.1f}-{100 * c['ci95'][1]:.1f}" for c in row["seeds"].values() if c["ci95"])
         steps, hours = _budget(row)
-        lines.append(f"| {row['row']} | {_ours(row)} | {row['seeds_counted']} of {len(table['seeds'])} | {cis} | {steps} | "
+        lines.append(f"| {row['row']} | {_ours(row)} | {_seeds(row, len(table['seeds']))} | {cis} | {steps} | "
                      f"{hours} | {row['paper']:.2f} ± {row['paper_std']:.2f} | {_origins(row)} |")
     if table["paired"]:
         lines += ["", "| paired (same episodes) | episodes | only the first succeeded | only the second | exact McNemar p |",
