@@ -56,6 +56,19 @@ class NutTracker:
         return (self.height - self.height0) - props.PITCH * self.turned / (2 * math.pi)
 
 
+def test_thread_geometry_matches_docs_table():
+    # docs/screw.md's table: 0.10 mm of play between neighbouring capsules, more than a 24-capsule turn's chord sags
+    # (so the nut turns freely), and 0.72 mm of radial overlap, more than the 0.2 mm the bolt's core lets the nut
+    # move sideways (so it cannot be pulled straight off).
+    sag = props.NUT_THREAD_RADIUS * (1 - math.cos(math.pi / make_task_config({"_target_": SCREW}).segments_per_turn))
+    overlap = 2 * props.THREAD_TUBE - (props.NUT_THREAD_RADIUS - props.BOLT_THREAD_RADIUS)
+    lateral_play = props.NUT_THREAD_RADIUS - props.THREAD_TUBE - props.BOLT_CORE_RADIUS
+    assert props.THREAD_CLEARANCE == pytest.approx(0.10e-3, abs=0.005e-3)
+    assert sag == pytest.approx(0.066e-3, abs=0.005e-3) and sag < props.THREAD_CLEARANCE
+    assert overlap == pytest.approx(0.72e-3) and lateral_play == pytest.approx(0.2e-3) and overlap > lateral_play
+    assert props.BOLT_THREAD_RADIUS + props.THREAD_TUBE == pytest.approx(0.008)  # crest at the M16 major radius
+
+
 def test_one_revolution_advances_one_pitch():
     e = screw_env()
     e.reset(seed=3)
