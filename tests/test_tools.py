@@ -291,3 +291,32 @@ def test_outcomes_tables_each_tasks_own_measurements_in_table_units(tmp_path):
     assert "| thread turns to go: median (quartiles) | offset from axis, mm | tilt, deg | height above floor, mm |" in table
     assert "| screw | slipped in the grasp | 1 | 3.2 (3.2-3.2) | 4.0 (4.0-4.0) | 28.6 (28.6-28.6) |  |" in table
     assert "| insertion | inserted | 1 |  | 0.3 (0.3-0.3) | 0.0 (0.0-0.0) | 0.1 (0.1-0.1) |" in table
+
+
+def test_export_refuses_a_missing_or_corrupt_checkpoint_by_name_and_keeps_the_shipped_file_whole(tmp_path,
+                                                                                                   monkeypatch):
+    import torch
+
+    from vitac import export
+
+    shipped = tmp_path / "p.pt"
+    shipped.write_bytes(b"the previous export")
+    with pytest.raises(SystemExit, match="no such checkpoint file"):
+        export.main([str(tmp_path / "missing.ckpt"), "--out", str(shipped)])
+    (tmp_path / "torn.ckpt").write_bytes(b"PK\x03\x04 half a zip")
+    with pytest.raises(SystemExit, match="torn.ckpt.* is not a readable vitac checkpoint"):
+        export.main([str(tmp_path / "torn.ckpt"), "--out", str(shipped)])
+    checkpoint = tmp_path / "last.ckpt"
+    torch.save({"vitac_config": {}, "state_dict": {"policy.w": torch.ones(3)}, "vitac": {"env_steps": 5}}, checkpoint)
+
+    def killed(obj, f):  # the process dies halfway through writing the new file
+        Path(f).write_bytes(b"half")
+        raise OSError("killed")
+
+    monkeypatch.setattr(torch, "save", killed)
+    with pytest.raises(SystemExit, match="killed"):
+        export.main([str(checkpoint), "--out", str(shipped)])
+    assert shipped.read_bytes() == b"the previous export" and [p.name for p in tmp_path.glob("*p.pt*")] == ["p.pt"]
+    monkeypatch.undo()
+    export.main([str(checkpoint), "--out", str(shipped)])
+    assert torch.load(shipped, weights_only=True)["env_steps"] == 5

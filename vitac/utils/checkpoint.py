@@ -98,6 +98,21 @@ def checkpoint_env_steps(checkpoint: dict) -> int | None:
     return checkpoint.get("env_steps") or (checkpoint.get("vitac") or {}).get("env_steps")
 
 
+def save_whole(obj, path: str | Path) -> None:
+    """`torch.save` through a temporary file beside `path`, renamed over it only once complete: a full disk or a
+    kill mid-write leaves the previous file whole, and no temporary file behind."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = temporary_beside(path)
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
 def export_policy(path: str | Path, out: str | Path) -> dict:
     """Write the checkpoint's policy as a shipped file: the network and normalizer weights (the value normalizer
     too, for a critic started from it) and the run's config, no optimizer or environment state; readable with
@@ -106,9 +121,7 @@ def export_policy(path: str | Path, out: str | Path) -> dict:
     config = checkpoint["vitac_config"]
     state = {k: v for k, v in checkpoint["state_dict"].items() if k.startswith(("policy.", "value_normalizer."))}
     shipped = dict(vitac_config=config, state_dict=state, env_steps=checkpoint_env_steps(checkpoint), source=str(path))
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(shipped, out)
+    save_whole(shipped, out)
     return shipped
 
 
@@ -122,14 +135,8 @@ class PortableCheckpointIO(TorchCheckpointIO):
     def save_checkpoint(self, checkpoint, path, storage_options=None) -> None:
         """Write through a temporary file renamed over `path` only once complete: a full disk or a kill mid-write
         leaves the previous checkpoint whole, and the run stops naming the file and the cause."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = temporary_beside(path)
-        os.close(fd)
         try:
-            torch.save(checkpoint, tmp)
-            os.replace(tmp, path)
+            save_whole(checkpoint, path)
         except OSError as err:
-            Path(tmp).unlink(missing_ok=True)
             raise OSError(f"could not write checkpoint {path} ({err.strerror or err}); the previous complete "
                           f"checkpoint there, if any, is intact: free space, then resume=<run dir>") from err
