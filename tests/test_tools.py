@@ -320,3 +320,13 @@ def test_export_refuses_a_missing_or_corrupt_checkpoint_by_name_and_keeps_the_sh
     monkeypatch.undo()
     export.main([str(checkpoint), "--out", str(shipped)])
     assert torch.load(shipped, weights_only=True)["env_steps"] == 5
+
+
+@pytest.mark.parametrize("tool, flag", [("vitac.analysis.log_std", []), ("vitac.video", ["--ckpt"])])
+def test_tools_reading_a_policy_refuse_a_missing_or_corrupt_checkpoint_in_one_line(tmp_path, tool, flag):
+    main = importlib.import_module(tool).main
+    with pytest.raises(SystemExit, match=r"missing.ckpt'?: no such checkpoint file"):
+        main([*flag, str(tmp_path / "missing.ckpt")])
+    (tmp_path / "torn.ckpt").write_bytes(b"PK\x03\x04 half a zip")
+    with pytest.raises(SystemExit, match="torn.ckpt.* is not a readable vitac checkpoint"):
+        main([*flag, str(tmp_path / "torn.ckpt")])

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from vitac.utils.checkpoint import export_policy
+from vitac.utils.cli import refuse_bad_files
 
 
 def main(argv=None) -> None:
@@ -19,10 +20,8 @@ def main(argv=None) -> None:
     parser.add_argument("ckpt", type=Path, help="a training checkpoint")
     parser.add_argument("--out", type=Path, required=True, help="the shipped file (pretrained/<name>.pt)")
     args = parser.parse_args(argv)
-    try:
+    with refuse_bad_files(parser.prog):
         shipped = export_policy(args.ckpt, args.out)
-    except (OSError, ValueError) as err:  # a missing or unreadable checkpoint, an unwritable --out: no traceback
-        raise SystemExit(f"python -m vitac.export: {err}") from err
     size = args.out.stat().st_size / 1e6
     print(f"{args.out}: {len(shipped['state_dict'])} tensors, {size:.1f} MB, {shipped['env_steps']} env steps")
 

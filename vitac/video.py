@@ -14,21 +14,22 @@ from pathlib import Path
 
 from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco loads
 from vitac.tasks.insertion.oracle import OracleController
-from vitac.utils.cli import int_at_least
+from vitac.utils.cli import int_at_least, refuse_bad_files
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS, policy_actor, record_episode, save_video
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="python -m vitac.video", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--ckpt", default=None, help="policy checkpoint (default: the scripted oracle)")
     parser.add_argument("--seed", type=int_at_least(0), default=0)
     parser.add_argument("--every", type=int_at_least(1), default=3, help="render every k-th control step")
     parser.add_argument("--out", type=Path, default=Path("episode.gif"))
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.ckpt:
         from vitac.run_config import load_policy
 
-        policy, _, settings = load_policy(args.ckpt)
+        with refuse_bad_files(parser.prog):
+            policy, _, settings = load_policy(args.ckpt)
         env = TaskEnv(dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS))),
                            seed=args.seed, offscreen_size=OUTSIDE)
         act = policy_actor(policy)

@@ -16,7 +16,7 @@ import torch
 
 from vitac.envs.gym_env import TaskEnv
 from vitac.run_config import load_policy
-from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
+from vitac.utils.cli import int_at_least, refuse_bad_files, stop_quietly_when_the_reader_closes
 
 
 def main(argv=None):
@@ -26,7 +26,8 @@ def main(argv=None):
     parser.add_argument("--episodes", type=int_at_least(1), default=3)
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    policy, cfg, settings = load_policy(args.ckpt)
+    with refuse_bad_files(parser.prog):
+        policy, cfg, settings = load_policy(args.ckpt)
     policy.eval()
     if policy.head.log_std_mode != "state":  # one value per action dimension, whatever the state
         print(f"log-std ({policy.head.log_std_mode}, before its bound): " +

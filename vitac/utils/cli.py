@@ -1,11 +1,12 @@
 """What the tools share on the command line: argparse types for their counts (a bad value is refused by
-argparse, naming the flag, before any work), and a quiet stop when their output is piped into a reader that
-closes early."""
+argparse, naming the flag, before any work), a one-line refusal of a file they cannot read or write, and a quiet
+stop when their output is piped into a reader that closes early."""
 
 from __future__ import annotations
 
 import argparse
 import signal
+from contextlib import contextmanager
 
 
 def _checked(convert, kind: str, accept, allowed: str):
@@ -37,3 +38,13 @@ def stop_quietly_when_the_reader_closes() -> None:
     as Unix tools do; Python otherwise ignores SIGPIPE and fails on its next write or at exit."""
     if hasattr(signal, "SIGPIPE"):  # POSIX only
         signal.signal(signal.SIGPIPE, signal.SIG_DFL)
+
+
+@contextmanager
+def refuse_bad_files(prog: str):
+    """Within it, a missing, corrupt or unwritable file (the OSError or ValueError that names it) ends the tool
+    with that message in one line, as argparse ends it for a bad flag, instead of a traceback."""
+    try:
+        yield
+    except (OSError, ValueError) as err:
+        raise SystemExit(f"{prog}: {err}") from err
