@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
 from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco loads
 from vitac.envs.vector_env import TaskVectorEnv
-from vitac.utils.cli import int_at_least
+from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
@@ -91,7 +90,7 @@ def main():
     parser.add_argument("--steps", type=int_at_least(1), default=1000)
     parser.add_argument("--tasks", nargs="+", choices=list(TASKS), default=["insertion"])
     parser.add_argument("--single", action="store_true", help="only the one-env figures")
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()
     singles = {}
     for task in args.tasks:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -29,7 +28,7 @@ import torch
 from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco renders
 from vitac.tasks.insertion.oracle import OracleController
 from vitac.tasks.insertion.task import InsertionTask
-from vitac.utils.cli import int_at_least
+from vitac.utils.cli import int_at_least, output_file, refuse_bad_files
 from vitac.utils.records import write_record
 
 OBSERVATIONS = ["proprio", "peg_state", "critic_state"]
@@ -114,12 +113,11 @@ def drive_scripted(driver: str, episodes: int, seed: int, options: dict, disable
     return dict(driver=driver, episodes=episodes, successes=successes, **meter.report(steps, seconds))
 
 
-def drive_checkpoint(ckpt: str, episodes: int, seed: int, options: dict, disable_mask: int) -> dict:
+def drive_checkpoint(ckpt: str, policy, settings: dict, episodes: int, seed: int, options: dict,
+                     disable_mask: int) -> dict:
     from vitac.algos.evaluation import run_episodes
     from vitac.envs.vector_env import TaskVectorEnv
-    from vitac.run_config import load_policy
 
-    policy, _, settings = load_policy(ckpt)
     torch.set_num_threads(1)
     envs = TaskVectorEnv(settings, num_envs=1, num_workers=0, seed=seed, step_in_main=True)
     try:
@@ -171,12 +169,17 @@ def main():
     parser.add_argument("--ckpt", default=None, help="also drive with this checkpoint's policy")
     parser.add_argument("--opt", action="append", default=[], metavar="NAME=VALUE", help="set a field of mjOption")
     parser.add_argument("--disable", action="append", default=[], metavar="FLAG", help="set mjDSBL_FLAG")
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()
     options, disable_mask = parse_options(args.opt), parse_disable(args.disable)
+    if args.ckpt:  # read before the scripted drivers' minutes: a missing or corrupt file stops the tool at once
+        from vitac.run_config import load_policy
+
+        with refuse_bad_files(parser.prog):
+            policy, _, settings = load_policy(args.ckpt)
     rows = [drive_scripted(d, args.episodes, args.seed, options, disable_mask) for d in ("random", "oracle")]
     if args.ckpt:
-        rows.append(drive_checkpoint(args.ckpt, args.episodes, args.seed, options, disable_mask))
+        rows.append(drive_checkpoint(args.ckpt, policy, settings, args.episodes, args.seed, options, disable_mask))
     print("| driver | successes | control steps/s | physics ms / control step (share) | us / substep | collision "
           "(narrow phase) us | constraint solve us (solver iterations) | contacts | constraint rows | contact-force solve us / control step |\n"
           "|---|---|---|---|---|---|---|---|---|---|")

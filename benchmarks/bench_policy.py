@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 
 from vitac.tasks.insertion.config import InsertionConfig
-from vitac.utils.cli import int_at_least
+from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
 PAPER = {"naive": (5.42, 19.24, 184.50), "gated": (5.51, 17.43, 181.49), "cmt": (6.52, 21.45, 153.37)}
@@ -88,7 +88,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--passes", type=int_at_least(1), default=1000)
     parser.add_argument("--threads", type=int_at_least(1), default=2)
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     parser.add_argument("overrides", nargs="*", help="Hydra overrides for every policy (encoder.image.bf16=true)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

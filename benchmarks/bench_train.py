@@ -21,7 +21,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
 from vitac.train import train
-from vitac.utils.cli import int_at_least
+from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
 PRIVILEGED = ["experiment=table1/privileged"]
@@ -88,7 +88,7 @@ def main():
     parser.add_argument("--iterations", type=int_at_least(2), default=6,
                         help="iterations per configuration; the first (start-up) is left out of the median")
     parser.add_argument("--only", nargs="+", choices=sorted(CONFIGS), default=list(CONFIGS))
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides for every configuration")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as teacher_dir:

@@ -17,12 +17,11 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import torch
 
 from vitac.tasks.insertion.config import InsertionConfig
-from vitac.utils.cli import int_at_least, number_above
+from vitac.utils.cli import int_at_least, number_above, output_file
 from vitac.utils.records import write_record
 
 FWD_BWD = 3  # backward costs about twice the forward (input and weight gradients)
@@ -74,7 +73,7 @@ def main():
     parser.add_argument("--repeats", type=int_at_least(1), default=5)
     parser.add_argument("--threads", type=int_at_least(1), default=2)
     parser.add_argument("--target", type=number_above(0), default=300.0, help="env steps/s to compare the ceiling with")
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--json", type=output_file, default=None)
     parser.add_argument("--profile", action="store_true", help="print torch.profiler's top ops of the bfloat16 minibatch")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

@@ -177,10 +177,20 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
     (["benchmarks/bench_env.py", "--steps", "many"], "argument --steps: 'many' is not an integer"),
     (["-m", "vitac.runs", "summary", "x.csv", "--window", "0"],
      "argument --window: 0.0 is not allowed: expected a number > 0"),
+    (["benchmarks/bench_update.py", "--json", "README.md/bench.json"],
+     "argument --json: README.md/bench.json is not allowed: its folder README.md cannot be created"),
 ])
 def test_tools_refuse_a_count_out_of_range_naming_the_flag_before_any_work(command, message):
     result = subprocess.run([sys.executable, *command], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and message in result.stderr and result.stdout == ""
+
+
+def test_bench_physics_refuses_a_missing_checkpoint_before_its_scripted_drivers_run(tmp_path):
+    # 1,000 episodes of each scripted driver would outlast the timeout: the checkpoint is read first.
+    result = subprocess.run([sys.executable, "benchmarks/bench_physics.py", "--episodes", "1000", "--ckpt",
+                             str(tmp_path / "missing.ckpt")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1 and "missing.ckpt': no such checkpoint file" in result.stderr
+    assert "Traceback" not in result.stderr and result.stdout == ""
 
 
 def test_plot_and_summary_tools_refuse_a_file_that_is_not_a_metrics_csv_naming_it(tmp_path):

@@ -1,12 +1,14 @@
 """What the tools share on the command line: argparse types for their counts (a bad value is refused by
-argparse, naming the flag, before any work), a one-line refusal of a file they cannot read or write, and a quiet
+argparse, naming the flag, before any work), output files probed before the work that fills them, a one-line refusal of a file they cannot read or write, and a quiet
 stop when their output is piped into a reader that closes early."""
 
 from __future__ import annotations
 
 import argparse
 import signal
+import tempfile
 from contextlib import contextmanager
+from pathlib import Path
 
 
 def _checked(convert, kind: str, accept, allowed: str):
@@ -31,6 +33,23 @@ def int_at_least(minimum: int):
 def number_above(bound: float):
     """An argparse `type` accepting numbers > `bound`."""
     return _checked(float, "a number", lambda value: value > bound, f"a number > {bound}")
+
+
+def output_file(text: str) -> Path:
+    """An argparse `type` for a file written at the end (a benchmark's `--json`): its folder is created and a
+    file is made and removed there now, so an unwritable path is refused, naming the flag, before minutes of
+    work that could not be saved."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is not allowed: it is a directory; expected a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as err:
+        raise argparse.ArgumentTypeError(f"{text} is not allowed: its folder {path.parent} cannot be created or "
+                                         f"written ({err.strerror or err})") from None
+    return path
 
 
 def stop_quietly_when_the_reader_closes() -> None:
