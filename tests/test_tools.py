@@ -178,9 +178,17 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
     (["-m", "vitac.runs", "summary", "x.csv", "--window", "0"],
      "argument --window: 0.0 is not allowed: expected a number > 0"),
     (["benchmarks/bench_update.py", "--json", "README.md/bench.json"],
-     "argument --json: README.md/bench.json is not allowed: its folder README.md cannot be created"),
+     "argument --json: README.md/bench.json is not allowed: the folder README.md cannot be created or written"),
+    (["-m", "vitac.export", "x.ckpt", "--out", "docs"], "argument --out: docs is not allowed: it is a directory"),
+    (["-m", "vitac.runs", "plot", "x.csv", "--out", "README.md/curves.png"], "argument --out: README.md/curves.png is"),
+    (["-m", "vitac.report", "docs/data/table1_runs", "--out", "README.md/report", "--evaluate"],
+     "argument --out: README.md/report is not allowed: the folder README.md/report cannot be created or written"),
+    (["-m", "vitac.report", "docs/data/table1_runs", "--evaluate", "--qual", "Naive"],
+     "argument --qual: 'Naive' is not allowed: expected NAME=CKPT"),
+    (["-m", "vitac.report", "docs/data/table1_runs", "--evaluate", "--qual", "Naive=missing.ckpt"],
+     "argument --qual: 'Naive=missing.ckpt' is not allowed: missing.ckpt is no checkpoint file"),
 ])
-def test_tools_refuse_a_count_out_of_range_naming_the_flag_before_any_work(command, message):
+def test_tools_refuse_a_bad_argument_naming_the_flag_before_any_work(command, message):
     result = subprocess.run([sys.executable, *command], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and message in result.stderr and result.stdout == ""
 

@@ -11,14 +11,14 @@ import argparse
 from pathlib import Path
 
 from vitac.utils.checkpoint import export_policy
-from vitac.utils.cli import refuse_bad_files
+from vitac.utils.cli import output_file, refuse_bad_files
 
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m vitac.export", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("ckpt", type=Path, help="a training checkpoint")
-    parser.add_argument("--out", type=Path, required=True, help="the shipped file (pretrained/<name>.pt)")
+    parser.add_argument("--out", type=output_file, required=True, help="the shipped file (pretrained/<name>.pt)")
     args = parser.parse_args(argv)
     with refuse_bad_files(parser.prog):
         shipped = export_policy(args.ckpt, args.out)

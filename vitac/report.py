@@ -24,7 +24,8 @@ from pathlib import Path
 from vitac.analysis import table1
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics
-from vitac.utils.cli import int_at_least, stop_quietly_when_the_reader_closes
+from vitac.utils.checkpoint import resolve_checkpoint
+from vitac.utils.cli import int_at_least, output_dir, stop_quietly_when_the_reader_closes
 from vitac.utils.records import read_whole, write_json
 
 EVAL_SEED = 2_000_000  # vitac.evaluate's default: every cell on the same held-out episodes
@@ -161,15 +162,25 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def named_checkpoint(text: str) -> tuple[str, str]:
+    """`--qual`'s NAME=CKPT, refused as it is parsed (before any evaluation) unless CKPT names a checkpoint file."""
+    name, _, ckpt = text.partition("=")
+    if not (name and ckpt):
+        raise argparse.ArgumentTypeError(f"{text!r} is not allowed: expected NAME=CKPT")
+    if not resolve_checkpoint(ckpt).is_file():
+        raise argparse.ArgumentTypeError(f"{text!r} is not allowed: {ckpt} is no checkpoint file")
+    return name, ckpt
+
+
 def main(argv=None):
     stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dirs", nargs="+", type=Path)
-    parser.add_argument("--out", type=Path, default=Path("report"))
+    parser.add_argument("--out", type=output_dir, default=Path("report"))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--min-episodes", type=int_at_least(1), default=400)
     parser.add_argument("--evaluate", action="store_true", help="evaluate finished, unevaluated cells first")
-    parser.add_argument("--qual", nargs="*", default=[], metavar="NAME=CKPT",
+    parser.add_argument("--qual", nargs="*", type=named_checkpoint, default=[], metavar="NAME=CKPT",
                         help="policies whose force fields over one held-out episode to draw (the paper's Fig. qual)")
     parser.add_argument("--computation", type=Path, default=Path("docs/data/bench_policy.json"),
                         help="the policy benchmark's record, for the paper's computation table")
@@ -193,7 +204,7 @@ def main(argv=None):
     if args.qual:
         from vitac.analysis import force_fields
 
-        named = dict(item.split("=", 1) for item in args.qual)
+        named = dict(args.qual)
         episodes = {name: force_fields.record_fields(ckpt, EVAL_SEED) for name, ckpt in named.items()}
         paths.append(force_fields.figure(episodes, args.out / "force_fields.png"))
     screw_png = screw_figure(screw, args.min_episodes, args.out)

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from vitac.analysis.curves import column, read_segments, smooth
+from vitac.utils.cli import output_file
 
 
 def wall_clock_hours(rows) -> list[tuple[float, float]]:
@@ -84,7 +85,7 @@ def main(argv=None):
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--run", type=labelled_run, action="append", required=True,
                         help="label=metrics CSV(s) of one run, in order (repeat for each run)")
-    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--out", type=output_file, required=True)
     parser.add_argument("--title", default="")
     args = parser.parse_args(argv)
     compare(dict(args.run), args.out, args.title)

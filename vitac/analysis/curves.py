@@ -22,7 +22,7 @@ import csv
 import math
 from pathlib import Path
 
-from vitac.utils.cli import number_above
+from vitac.utils.cli import number_above, output_file
 from vitac.utils.records import read_whole
 
 
@@ -75,7 +75,7 @@ def smooth(points, window: int):
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m vitac.runs plot", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("metrics", type=Path, nargs="+", help="metrics CSV(s) of one run, in order")
-    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--out", type=output_file, required=True)
     parser.add_argument("--title", default="")
     parser.add_argument("--baseline", type=Path, default=None, help="metrics CSV of a run to compare with")
     parser.add_argument("--baseline-label", default="baseline")

@@ -35,20 +35,31 @@ def number_above(bound: float):
     return _checked(float, "a number", lambda value: value > bound, f"a number > {bound}")
 
 
+def _probe(text: str, folder: Path) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as err:
+        raise argparse.ArgumentTypeError(f"{text} is not allowed: the folder {folder} cannot be created or written "
+                                         f"({err.strerror or err})") from None
+
+
 def output_file(text: str) -> Path:
-    """An argparse `type` for a file written at the end (a benchmark's `--json`): its folder is created and a
-    file is made and removed there now, so an unwritable path is refused, naming the flag, before minutes of
+    """An argparse `type` for a file written at the end (a benchmark's `--json`, a figure): its folder is created
+    and a file made and removed there now, so an unwritable path is refused, naming the flag, before minutes of
     work that could not be saved."""
     path = Path(text)
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} is not allowed: it is a directory; expected a file name")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path.parent):
-            pass
-    except OSError as err:
-        raise argparse.ArgumentTypeError(f"{text} is not allowed: its folder {path.parent} cannot be created or "
-                                         f"written ({err.strerror or err})") from None
+    _probe(text, path.parent)
+    return path
+
+
+def output_dir(text: str) -> Path:
+    """An argparse `type` for a folder written at the end (a report's `--out`), probed as `output_file` is."""
+    path = Path(text)
+    _probe(text, path)
     return path
 
 
