@@ -176,7 +176,7 @@ def main(argv=None):
     stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dirs", nargs="+", type=Path)
-    parser.add_argument("--out", type=output_dir, default=Path("report"))
+    parser.add_argument("--out", type=output_dir, default="report")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--min-episodes", type=int_at_least(1), default=400)
     parser.add_argument("--evaluate", action="store_true", help="evaluate finished, unevaluated cells first")

@@ -10,7 +10,6 @@ The right pad's map is shown with its rows flipped, so a balanced grasp looks li
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco loads
 from vitac.tasks.insertion.oracle import OracleController
@@ -23,7 +22,7 @@ def main(argv=None):
     parser.add_argument("--ckpt", default=None, help="policy checkpoint (default: the scripted oracle)")
     parser.add_argument("--seed", type=int_at_least(0), default=0)
     parser.add_argument("--every", type=int_at_least(1), default=3, help="render every k-th control step")
-    parser.add_argument("--out", type=output_file, default=Path("episode.gif"))
+    parser.add_argument("--out", type=output_file, default="episode.gif")
     args = parser.parse_args(argv)
     if args.ckpt:
         from vitac.run_config import load_policy

@@ -1,6 +1,7 @@
 """What the tools share on the command line: argparse types for their counts (a bad value is refused by
-argparse, naming the flag, before any work), output files probed before the work that fills them, a one-line refusal of a file they cannot read or write, and a quiet
-stop when their output is piped into a reader that closes early."""
+argparse, naming the flag, before any work) and for their outputs (probed before the work that fills them), a
+one-line refusal of a file they cannot read or write, and a quiet stop when their output is piped into a reader
+that closes early."""
 
 from __future__ import annotations
 
