@@ -174,7 +174,8 @@ def named_checkpoint(text: str) -> tuple[str, str]:
 
 def main(argv=None):
     stop_quietly_when_the_reader_closes()
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m vitac.report", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dirs", nargs="+", type=Path)
     parser.add_argument("--out", type=output_dir, default="report")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])

@@ -62,7 +62,8 @@ def markdown(cells: dict, rows: list[str], seeds: list[int]) -> str:
 
 
 def main(argv=None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m vitac.runs status", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("dirs", nargs="+", type=Path)
     parser.add_argument("--experiments", default="table1/*")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
