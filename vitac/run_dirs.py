@@ -13,13 +13,12 @@ import csv
 import hashlib
 import json
 import shutil
-import tempfile
 from pathlib import Path
 
 import yaml
 
 from vitac.utils.checkpoint import checkpoint_env_steps, load_checkpoint, resolve_checkpoint
-from vitac.utils.records import read_whole, write_json
+from vitac.utils.records import check_writable_dir, read_whole, write_json
 
 PART_PREFIX = "metrics_part"
 EVALUATION = Path("checkpoints") / "last.eval.json"  # vitac.evaluate's report on the last checkpoint
@@ -33,9 +32,7 @@ def check_output_dir(out: Path, min_free: int = MIN_FREE_BYTES) -> None:
     nearly full: a run would otherwise fail at its first checkpoint, hours in."""
     out = Path(out)
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-check-"):
-            pass
+        check_writable_dir(out)
     except OSError as err:
         raise OSError(f"output directory {str(out)!r} is not writable ({err.strerror or err}): choose another "
                       "with hydra.run.dir=<dir> (or hydra.sweep.dir=<dir> for a sweep)") from err

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import argparse
 import signal
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+
+from vitac.utils.records import check_writable_dir
 
 
 def _checked(convert, kind: str, accept, allowed: str):
@@ -38,9 +39,7 @@ def number_above(bound: float):
 
 def _probe(text: str, folder: Path) -> None:
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            pass
+        check_writable_dir(folder)
     except OSError as err:
         raise argparse.ArgumentTypeError(f"{text} is not allowed: the folder {folder} cannot be created or written "
                                          f"({err.strerror or err})") from None

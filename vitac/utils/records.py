@@ -27,6 +27,14 @@ def temporary_beside(path: Path) -> tuple[int, str]:
     return fd, tmp
 
 
+def check_writable_dir(folder: Path) -> None:
+    """Create `folder` if needed and make and remove a file there, so a path that could not take a tool's output
+    raises its OSError now rather than after the work that fills it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryFile(dir=folder):
+        pass
+
+
 def write_json(path: Path, data) -> None:
     """Write `data` as indented JSON to `path` through a temporary file beside it, renamed over `path` at the end:
     a run killed while writing leaves the previous file (or none), never half a report."""
