@@ -348,3 +348,36 @@ def test_tools_reading_a_policy_refuse_a_missing_or_corrupt_checkpoint_in_one_li
     (tmp_path / "torn.ckpt").write_bytes(b"PK\x03\x04 half a zip")
     with pytest.raises(SystemExit, match="torn.ckpt.* is not a readable vitac checkpoint"):
         main([*flag, str(tmp_path / "torn.ckpt")])
+
+
+def test_outcomes_by_factor_finds_the_factor_the_failures_come_from(tmp_path):
+    rng = np.random.default_rng(0)
+    tilt, depth = rng.uniform(-0.6, 0.6, 80), rng.uniform(0.03, 0.04, 80)
+    failed = np.abs(tilt) > 0.45  # the failures are the steepest in-hand tilts, either way
+    final_state = [dict(outcome="stuck part-way in the hole" if f else "inserted", peg_offset_xy=0.0, peg_height=0.0,
+                        peg_tilt=0.0) for f in failed]
+    report = dict(episodes=80, success_rate=float(1 - failed.mean()), seed=2_000_000, final_state=final_state,
+                  episode_success=[int(not f) for f in failed],
+                  episode_factors=[dict(peg_in_hand_tilt=float(t), peg_in_hand_depth=float(d), ee_pos=[0.5, float(d), 0.1])
+                                   for t, d in zip(tilt, depth, strict=True)])
+    write_json(tmp_path / "r.json", report)
+    table = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "r.json"), "--by-factor"],
+                           check=True, cwd=ROOT, capture_output=True, text=True).stdout
+    rows = [line for line in table.splitlines() if line.startswith("| ") and "factor" not in line and "report" not in line
+            and "inserted" not in line and "stuck" not in line]
+    assert f"{failed.sum()} of 80 episodes failed" in table
+    cells = [[c.strip() for c in row.split("|")[1:-1]] for row in rows]
+    assert cells[0][0] == "abs(peg_in_hand_tilt)" and float(cells[0][4]) < 1e-6  # the most telling factor first
+    assert cells[0][1].startswith("100 / 100 / ") and cells[0][1].endswith(" / 0")
+    assert {c[0] for c in cells} == {"peg_in_hand_tilt", "abs(peg_in_hand_tilt)", "peg_in_hand_depth", "ee_pos.x",
+                                     "ee_pos.y", "ee_pos.z"}
+    stuck = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "r.json"), "--by-factor",
+                            "--outcome", "stuck part-way in the hole"], check=True, cwd=ROOT, capture_output=True,
+                           text=True).stdout
+    assert "episodes stuck part-way in the hole" in stuck
+    for args, message in ((["--outcome", "jammed"], "--outcome goes with --by-factor"),
+                          (["--by-factor", "--outcome", "jammed"], "no episode of the report ended so")):
+        refused = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "r.json"), *args],
+                                 cwd=ROOT, capture_output=True, text=True)
+        assert refused.returncode != 0 and message in refused.stderr and "Traceback" not in refused.stderr
+        assert "| report |" not in refused.stdout  # refused before any table

@@ -75,13 +75,16 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
 
 
 def episode_statistics(summary: dict) -> dict:
-    """The report's success statistics and how each episode ended, as the task's outcome() reports it (m, rad)."""
+    """The report's success statistics, how each episode ended, as the task's outcome() reports it (m, rad), and
+    what each started from: the values its randomization drew, by factor (`vitac.runs outcomes --by-factor`)."""
+    detail = summary["episodes_detail"]
     return dict(**{k: v for k, v in summary.items() if k != "episodes_detail"},
-                episode_success=[int(e["success"]) for e in summary["episodes_detail"]],
-                final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in summary["episodes_detail"]],
+                episode_success=[int(e["success"]) for e in detail],
+                final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in detail],
                 final_state=[{k: round(v, 6) if isinstance(v, float) else v for k, v in e.items()
-                              if k not in ("success", "steps_to_success", "keypoint_distance", "episode")}
-                             for e in summary["episodes_detail"]])
+                              if k not in ("success", "steps_to_success", "keypoint_distance", "episode", "factors")}
+                             for e in detail],
+                episode_factors=[{k: np.round(v, 6).tolist() for k, v in e.get("factors", {}).items()} for e in detail])
 
 
 def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out: str | Path,
@@ -117,6 +120,10 @@ def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out
     return report
 
 
+# The report's per-episode lists: in the file, not on the console.
+PER_EPISODE = ("steps_to_success", "final_keypoint_distance_mm", "final_state", "episode_factors")
+
+
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
 def main(cfg: DictConfig) -> None:
     quiet_third_party()
@@ -133,8 +140,7 @@ def main(cfg: DictConfig) -> None:
         report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
                           cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only,
                           cfg.step_in_main)
-    print(json.dumps({k: v for k, v in report.items() if k not in ("steps_to_success", "final_keypoint_distance_mm", "final_state")},
-                     indent=2))
+    print(json.dumps({k: v for k, v in report.items() if k not in PER_EPISODE}, indent=2))
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vitac.envs.gym_env import TaskEnv
-from vitac.tasks.insertion.config import InsertionConfig, Randomization
+from vitac.tasks.insertion.config import RANDOMIZED_FACTORS, InsertionConfig, Randomization
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
 
@@ -199,6 +199,27 @@ def test_episode_end_reports_where_the_peg_ended():
     assert outcomes["still"]["outcome"] == "not over the socket" and outcomes["still"]["peg_offset_xy"] > 0.05
     # Driven straight down beside the socket, the peg hits the table and turns over in the grasp.
     assert outcomes["down"]["outcome"] == "dropped or knocked over" and outcomes["down"]["peg_tilt"] > 1.0
+
+
+def test_episode_end_reports_the_values_its_randomization_drew():
+    e = TaskEnv({"observations": ["proprio"]}, seed=0)
+    obs, _ = e.reset(seed=7)
+    task, physics = e.task, e.physics
+    socket, noise = task.socket_pos(physics), task._socket_noise.copy()
+    done = False
+    while not done:
+        _, _, te, tr, info = e.step(np.zeros(6))
+        done = te or tr
+    e.close()
+    factors = info["factors"]
+    assert set(factors) == set(RANDOMIZED_FACTORS)  # every factor of the paper's table, by the names randomize_only takes
+    np.testing.assert_allclose(factors["socket_pos"], socket)
+    np.testing.assert_allclose(factors["socket_obs_noise"], noise)
+    r = Randomization()
+    assert r.peg_in_hand_depth[0] <= factors["peg_in_hand_depth"] <= r.peg_in_hand_depth[1]
+    assert r.peg_in_hand_tilt[0] <= factors["peg_in_hand_tilt"] <= r.peg_in_hand_tilt[1]
+    # The observation's hand position is the drawn one (the grasp settles with the hand held in place).
+    np.testing.assert_allclose(obs["proprio"][:3], factors["ee_pos"], atol=2e-3)
 
 
 def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis():

@@ -19,6 +19,7 @@ from vitac.algos import losses
 from vitac.algos.buffer import SequenceStore, check_batch_layout
 from vitac.algos.curriculum import RandomizationCurriculum
 from vitac.algos.rollout import RolloutAlgorithm
+from vitac.algos.teacher import TeacherLabels
 from vitac.models.policy import VisuoTactilePolicy
 from vitac.utils.checks import check_int, is_number, refuse
 
@@ -67,16 +68,8 @@ class DAgger(RolloutAlgorithm):
                        dataset_rollouts=dataset_rollouts)
         check_dagger(self.hp, horizon, envs.num_envs, seq_len)
         # Not a submodule: the teacher stays out of the student's checkpoints, optimizer and train/eval switches.
-        self._teacher = (teacher.requires_grad_(False).eval(),)
-        missing = [k for k in teacher.input_keys if k not in envs.single_observation_space.spaces]
-        if missing:
-            raise ValueError(f"teacher_ckpt: the teacher reads {missing}, which the environments do not observe")
-        self._teacher_state = None
+        self.labels = TeacherLabels(teacher, envs.single_observation_space.spaces)
         self.dataset = SequenceStore(dataset_rollouts)
-
-    @property
-    def teacher(self) -> VisuoTactilePolicy:
-        return self._teacher[0]
 
     def configure_optimizers(self):
         return torch.optim.Adam([p for p in self.policy.parameters() if p.requires_grad], lr=self.hp["lr"])
@@ -97,19 +90,17 @@ class DAgger(RolloutAlgorithm):
     # ----------------------------------------------------------------------------------- rollout
     def on_train_start(self):
         super().on_train_start()
-        self.teacher.to(self.device)
-        if self._teacher_state is None:  # a fresh run; a resumed one restored it in load_extra_state
-            self._teacher_state = self.teacher.initial_state(self.envs.num_envs, self.device)
+        self.labels.start(self.envs.num_envs, self.device)
 
     def extra_state(self) -> dict:
-        return dict(teacher_state=tuple(s.cpu() for s in self._teacher_state))
+        return self.labels.state_dict()
 
     def resume_state(self) -> dict:
         # One rollout kept is this iteration's, which the next one replaces: nothing to carry.
         return dict(dataset=self.dataset.state_dict()) if self.dataset.capacity > 1 else {}
 
     def load_extra_state(self, state: dict) -> None:
-        self._teacher_state = tuple(s.to(self.device) for s in state["teacher_state"])
+        self.labels.load_state_dict(state, self.device)
         saved = state.get("dataset")
         if saved is not None and self.dataset.capacity == saved["capacity"]:  # else (a changed dataset_rollouts)
             self.dataset.load_state_dict(saved)                                # the dataset starts afresh
@@ -118,12 +109,7 @@ class DAgger(RolloutAlgorithm):
         buf = self.buffer
         if getattr(buf, "labels", None) is None:
             buf.labels = torch.zeros_like(buf.actions)
-        # The label of step t: the teacher's mean on the observation at t, before the environments step.
-        inputs, starts = self.teacher.step_inputs({k: obs[k] for k in self.teacher.input_keys}, self._starts)
-        label, _, _, self._teacher_state = self.teacher(inputs, self._teacher_state, starts)
-        # The action the teacher would execute: its mean within the action bounds (beyond them every value
-        # executes the same, and matching it there would only spend the student's capacity).
-        label = label[0].cpu().clamp(-1.0, 1.0)
+        label = self.labels(obs, self._starts)  # the teacher's mean on the observation at t
         buf.labels[t] = label
         student = mean
         if self.hp["student_actions"] == "sample":

@@ -43,7 +43,13 @@ class PPO(RolloutAlgorithm):
         lr_schedule: "fixed" keeps `lr` (TacSL's actor); "adaptive" is rl_games' KL-adaptive rate (`kl_threshold`),
             moved after every minibatch step, mini-epoch or iteration (`lr_schedule_every`) within [lr_min, lr_max].
             The current rate is saved in checkpoints with the optimizer.
+        critic_warmup_iterations: iterations at the start during which only the critic learns (the actor's
+            weights, noise and input normalizers stay as loaded, the rate stays at `lr`): a critic fitted to a
+            warm-started actor before that actor's first gradient (PIRLNav). Needs an asymmetric critic.
     """
+
+    # The per-step fields an update's minibatches carry (an algorithm built on PPO may add its own).
+    minibatch_fields = ("actions", "log_probs", "values", "advantages", "returns")
 
     def __init__(self, policy: VisuoTactilePolicy, envs, horizon: int = 512, seq_len: int = 128,
                  minibatch_size: int = 512, mini_epochs: int = 4, lr: float = 1e-4, gamma: float = 0.99,
@@ -53,15 +59,24 @@ class PPO(RolloutAlgorithm):
                  seed: int = 0, rollout_threads: int = 1, update_threads: int = 2,
                  run_config: dict | None = None, curriculum: RandomizationCurriculum | None = None,
                  lr_schedule: str = "fixed", kl_threshold: float = 0.008, lr_schedule_every: str = "minibatch",
-                 lr_min: float = 1e-6, lr_max: float = 1e-2):
+                 lr_min: float = 1e-6, lr_max: float = 1e-2, critic_warmup_iterations: int = 0):
         super().__init__(policy, envs, horizon, seq_len, seed, rollout_threads, update_threads, run_config, curriculum)
+        if critic_warmup_iterations and policy.critic is None:  # the head's value shares the actor's layers
+            raise ValueError(f"algo.critic_warmup_iterations={critic_warmup_iterations} is not allowed with critic=none: "
+                             "a warm-up trains the critic alone, which needs an asymmetric critic (critic=state)")
         check_batch_layout(horizon, envs.num_envs, seq_len, minibatch_size)
         self.value_normalizer = RunningNormalizer((), clip=float("inf"))
         self.hp = dict(minibatch_size=minibatch_size, mini_epochs=mini_epochs, lr=lr, gamma=gamma, gae_lambda=gae_lambda,
                        clip=clip, critic_coef=critic_coef, clip_value=clip_value, grad_norm=grad_norm,
                        entropy_coef=entropy_coef, bounds_loss_coef=bounds_loss_coef, normalize_input=normalize_input,
-                       normalize_value=normalize_value, normalize_advantage=normalize_advantage)
+                       normalize_value=normalize_value, normalize_advantage=normalize_advantage,
+                       critic_warmup_iterations=critic_warmup_iterations)
         self.lr_schedule = make_lr_schedule(lr_schedule, kl_threshold, lr_schedule_every, lr_min, lr_max, lr)
+
+    @property
+    def actor_frozen(self) -> bool:
+        """Whether this iteration is one of the critic's warm-up (a function of the iteration: resume continues it)."""
+        return self.current_epoch < self.hp["critic_warmup_iterations"]
 
     def configure_optimizers(self):
         params = [p for p in self.policy.parameters() if p.requires_grad]
@@ -121,10 +136,14 @@ class PPO(RolloutAlgorithm):
         entropy = losses.gaussian_entropy(log_std).mean()
         b_loss = losses.bounds_loss(mean)
         sym_loss = sym.mean() if sym is not None else torch.zeros((), device=mean.device)
-        total = (pg_loss + 0.5 * hp["critic_coef"] * v_loss - hp["entropy_coef"] * entropy
-                 + hp["bounds_loss_coef"] * b_loss + policy.regularizer.lambda_sym * sym_loss)
+        total = 0.5 * hp["critic_coef"] * v_loss
+        if not self.actor_frozen:  # in the warm-up no actor term reaches a gradient
+            total = total + (pg_loss - hp["entropy_coef"] * entropy + hp["bounds_loss_coef"] * b_loss
+                             + policy.regularizer.lambda_sym * sym_loss)
         return dict(loss=total, policy_loss=pg_loss, value_loss=v_loss, entropy=entropy, bounds_loss=b_loss,
-                    sym_loss=sym_loss, approx_kl=approx_kl, clipfrac=clipfrac, advantages=advantages)
+                    sym_loss=sym_loss, approx_kl=approx_kl, clipfrac=clipfrac, advantages=advantages, mean=mean)
+
+    logged_losses = ("loss", "policy_loss", "value_loss", "entropy", "bounds_loss", "sym_loss", "approx_kl", "clipfrac")
 
     @staticmethod
     def _lr(optimizer) -> float:
@@ -140,10 +159,13 @@ class PPO(RolloutAlgorithm):
         if hp["normalize_value"]:
             self.value_normalizer.update(self.buffer.returns)
         optimizer = self.optimizers()
+        # In the critic's warm-up the actor's KL is 0: an adaptive rate would climb to its maximum before the actor
+        # learns at all, so the schedule waits.
+        schedule = None if self.actor_frozen else self.lr_schedule
         sums: dict[str, float] = {}
         count = 0
         for _ in range(hp["mini_epochs"]):
-            for mb in self.buffer.minibatches(hp["minibatch_size"], self.generator):
+            for mb in self.buffer.minibatches(hp["minibatch_size"], self.generator, self.minibatch_fields):
                 terms = self.minibatch_losses(move_data_to_device(mb, self.device))
                 optimizer.zero_grad()
                 self.manual_backward(terms["loss"])
@@ -152,23 +174,24 @@ class PPO(RolloutAlgorithm):
                     sums["skipped_updates"] = sums.get("skipped_updates", 0.0) + 1.0
                     continue
                 optimizer.step()
-                if self.lr_schedule is not None:
-                    self._set_lr(optimizer, self.lr_schedule.after_minibatch(self._lr(optimizer), float(terms["approx_kl"])))
+                if schedule is not None:
+                    self._set_lr(optimizer, schedule.after_minibatch(self._lr(optimizer), float(terms["approx_kl"])))
                 count += 1
-                for k in ("loss", "policy_loss", "value_loss", "entropy", "bounds_loss", "sym_loss", "approx_kl",
-                          "clipfrac"):
+                for k in self.logged_losses:
                     sums[k] = sums.get(k, 0.0) + float(terms[k].detach())
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
-            if self.lr_schedule is not None:
-                self._set_lr(optimizer, self.lr_schedule.after_mini_epoch(self._lr(optimizer)))
-        if self.lr_schedule is not None:
-            self._set_lr(optimizer, self.lr_schedule.after_iteration(self._lr(optimizer)))
+            if schedule is not None:
+                self._set_lr(optimizer, schedule.after_mini_epoch(self._lr(optimizer)))
+        if schedule is not None:
+            self._set_lr(optimizer, schedule.after_iteration(self._lr(optimizer)))
         if hp["normalize_input"]:  # after the update, so rollout and update saw the same statistics
-            self.policy.update_normalizers({k: v.reshape(-1, *v.shape[2:]) for k, v in self.buffer.obs.items()})
+            self.policy.update_normalizers({k: v.reshape(-1, *v.shape[2:]) for k, v in self.buffer.obs.items()},
+                                           actor=not self.actor_frozen)
         skipped = sums.pop("skipped_updates", 0.0)
         metrics.update({f"losses/{k}": v / max(count, 1) for k, v in sums.items()})
         metrics["losses/skipped_updates"] = skipped
         metrics["charts/lr"] = self._lr(optimizer)
+        metrics["charts/actor_frozen"] = float(self.actor_frozen)
         values, returns = self.buffer.values.flatten(), self.buffer.returns.flatten()
         metrics["losses/explained_variance"] = losses.explained_variance(values, returns)
         return metrics

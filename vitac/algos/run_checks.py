@@ -11,6 +11,7 @@ import torch
 from vitac.algos.buffer import check_batch_layout
 from vitac.algos.curriculum import RandomizationCurriculum
 from vitac.algos.dagger import check_dagger
+from vitac.algos.kickstart import check_kickstart
 from vitac.algos.lr_schedule import make_lr_schedule
 from vitac.tasks import import_object
 from vitac.utils.checkpoint import resolve_checkpoint
@@ -37,6 +38,7 @@ def check_ppo(algo: dict, num_envs: int) -> None:
     """Refuse any out-of-range value of conf/algo/ppo.yaml (as composed), with its key."""
     for name in POSITIVE_INTS:
         check_int(f"algo.{name}", algo[name], 1)
+    check_int("algo.critic_warmup_iterations", algo.get("critic_warmup_iterations", 0), 0)
     for name in POSITIVE_NUMBERS:
         if not is_number(algo[name]) or not algo[name] > 0:
             refuse(f"algo.{name}", algo[name], "a number > 0")
@@ -63,6 +65,20 @@ TARGET_GROUPS = ("algo", "envs", "curriculum", "eval", "checkpoint", "fusion", "
                  "encoder.vector")
 
 
+def accepted_keywords(target) -> set | None:
+    """The keyword arguments `target` accepts: its own and, for a class whose constructor passes **kwargs on to its
+    base class's, that one's too; None when it accepts any."""
+    names = set()
+    for owner in target.__mro__ if isinstance(target, type) else (target,):
+        if isinstance(target, type) and "__init__" not in vars(owner):
+            continue
+        params = inspect.signature(owner).parameters
+        names |= {n for n, p in params.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+        if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            return names
+    return None
+
+
 def check_keys(cfg: dict) -> None:
     """Refuse a key the run would silently ignore (`+foo=1`, `+algo.lr_decay=0.9`), naming it and what is allowed:
     top-level keys, plain groups' keys, and each built group's keys against its target's parameters."""
@@ -83,9 +99,9 @@ def check_keys(cfg: dict) -> None:
                 if key != "_target_":
                     refuse(f"{group}.{key}", value, f"no keys while {group}._target_ is null (that group is off)")
             continue
-        params = inspect.signature(import_object(node["_target_"])).parameters
-        if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-            continue  # a target taking **kwargs accepts any key
+        params = accepted_keywords(import_object(node["_target_"]))
+        if params is None:
+            continue  # a target taking **kwargs it does not pass on to a base class accepts any key
         for key, value in node.items():
             if not key.startswith("_") and key not in params:
                 refuse(f"{group}.{key}", value, f"one of {sorted(params)} (the parameters of {node['_target_']})")
@@ -120,6 +136,8 @@ def check_run(cfg: dict) -> dict:
                      algo["horizon"], envs["num_envs"], algo["seq_len"])
     else:
         check_ppo(algo, envs["num_envs"])
+    if algo["_target_"] == "vitac.algos.kickstart.KickstartPPO":
+        check_kickstart(algo.get("imitation_coef", 1.0), algo.get("imitation_iterations", 50))
     check_int("trainer.iterations", cfg["trainer"]["iterations"], 1)
     check_int("trainer.max_nonfinite_iterations", cfg["trainer"]["max_nonfinite_iterations"], 1)
     check_int("eval.every", cfg["eval"]["every"], 1)

@@ -84,6 +84,9 @@ def _widen_feature_input(policy, weight: torch.Tensor, old_modalities: list, pat
     return widened
 
 
+CRITIC_INPUT = "policy.critic.mlp.0.weight"  # the critic's first layer: critic state, then the actor's memory
+
+
 def load_critic(module, path: str) -> None:
     """TacSL's AACD: start the asymmetric critic (and its input normalizer) from another run's checkpoint."""
     if module.policy.critic is None:
@@ -93,6 +96,17 @@ def load_critic(module, path: str) -> None:
     picked = {k: v for k, v in state.items() if k.startswith(prefixes)}
     if not picked:
         raise ValueError(f"critic_ckpt={path!r} holds no critic weights")
+    own = module.policy.critic.state_dict()
+    saved = picked.get(CRITIC_INPUT)
+    if saved is not None and saved.shape[1] < own["mlp.0.weight"].shape[1] and module.policy.critic.reads_actor_memory:
+        # A critic that reads the actor's memory, from one that did not: the memory enters with zero weights, so
+        # the critic starts as the checkpoint's and learns to use it.
+        picked[CRITIC_INPUT] = torch.cat([saved, saved.new_zeros(saved.shape[0], own["mlp.0.weight"].shape[1]
+                                                                 - saved.shape[1])], dim=1)
+    _, unexpected, shapes = state_mismatch(module.state_dict(), picked)
+    if unexpected or shapes:
+        raise ValueError(f"critic_ckpt={path!r} does not fit this critic: {(unexpected + shapes)[:5]} differ in name "
+                         f"or shape")
     missing = module.load_state_dict(picked, strict=False)
     log.info("critic loaded from %s (%d tensors, %d other keys untouched)", path, len(picked),
              len(missing.missing_keys))

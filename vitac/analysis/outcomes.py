@@ -11,6 +11,10 @@ the peg's horizontal offset from the hole axis (mm), its height above the hole f
 many episodes only the first inserted, how many only the second, and the exact two-sided McNemar p-value; then
 the mean steps to succeed of each over the episodes both inserted, with the Wilcoxon signed-rank p-value.
 
+`--by-factor` shows, for each report, success by randomized factor (grasp depth, in-hand tilt, socket noise,
+start pose, ...) and which factors the failures (or, with `--outcome LABEL`, the episodes of one outcome)
+differ in (vitac.analysis.factors).
+
 `--pooled` adds up reports of one checkpoint under one setting on different episodes (seed ranges that do
 not overlap, e.g. `episodes=100` then `episodes=300 seed=2000100`): the success rate over all of them with
 its 95% Wilson interval.
@@ -27,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from vitac.algos.evaluation import wilson_interval
+from vitac.analysis.factors import factor_table
 from vitac.utils.cli import stop_quietly_when_the_reader_closes
 from vitac.utils.records import read_whole
 
@@ -157,10 +162,19 @@ def main(argv=None):
     parser.add_argument("reports", type=Path, nargs="+")
     parser.add_argument("--paired", action="store_true", help="compare two reports of the same episodes")
     parser.add_argument("--pooled", action="store_true", help="success over reports of one checkpoint on other episodes")
+    parser.add_argument("--by-factor", action="store_true",
+                        help="success by randomized factor, and which factors the failures differ in (each report)")
+    parser.add_argument("--outcome", metavar="LABEL",
+                        help="with --by-factor: compare the episodes that ended so (e.g. 'stuck part-way in the "
+                             "hole') with the others, instead of the failures with the successes")
     args = parser.parse_args(argv)
+    if args.outcome is not None and not args.by_factor:
+        parser.error("--outcome goes with --by-factor")
     if args.paired and len(args.reports) != 2:
         parser.error("--paired takes exactly two reports")
     reports = [read_report(path) for path in args.reports]
+    by_factor = [f"\n{report_name(path)}: " + factor_table(report, args.outcome)
+                 for path, report in zip(args.reports, reports, strict=True)] if args.by_factor else []
     ends = [final_states(report) for report in reports]
     columns = list(dict.fromkeys(k for episodes in ends for e in episodes for k in e if k != "outcome"))
     print("| report | outcome | episodes | " + " | ".join(f"{c}: median (quartiles)" if i == 0 else c
@@ -177,4 +191,6 @@ def main(argv=None):
         print("\n" + paired(*reports, names=tuple(report_name(path) for path in args.reports)))
     if args.pooled:
         print("\n" + pooled(reports, [report_name(path) for path in args.reports]))
+    for table in by_factor:
+        print(table)
 

@@ -30,7 +30,8 @@ class TaskEnv(gym.Env):
     composer ends an episode at the time limit with discount 1: that is reported as `truncated`
     (bootstrap), and a discount of 0 (a task's success or failure, or diverged physics) as `terminated`.
     `info` carries `success` (judged at the last step), `steps_to_success` (first step the criterion held,
-    -1 if never) and `keypoint_distance`.
+    -1 if never) and `keypoint_distance`; an episode's last also its `outcome` (the task's label and
+    measurements) and `factors` (the values its randomization drew, by factor name).
 
     Args:
         config: task settings (a task's config, or a dict of its keys with `_target_` naming its class;
@@ -99,8 +100,8 @@ class TaskEnv(gym.Env):
             reward, terminated, truncated = 0.0, True, False
         self._needs_reset = terminated or truncated
         info = self._info()
-        if self._needs_reset:  # how the episode ended, for evaluation reports
-            info.update(self._env.task.outcome(self._env.physics))
+        if self._needs_reset:  # how the episode ended, and what it started from, for evaluation reports
+            info.update(self._env.task.outcome(self._env.physics), factors=dict(self._env.task.episode_factors))
             if self._env.diverged:  # composer ended a diverged simulation
                 info.update(outcome="physics diverged", success=False)
             elif not finite:

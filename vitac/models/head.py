@@ -88,16 +88,22 @@ class RecurrentActorHead(nn.Module):
         zeros = torch.zeros(self.layers, batch, self.hidden, device=device)
         return zeros, zeros.clone()
 
-    def forward(self, features: torch.Tensor, state, episode_starts: torch.Tensor):
-        """features (T, B, F), episode_starts (T, B) -> mean, log_std (T, B, A), value (T, B), state."""
+    def forward(self, features: torch.Tensor, state, episode_starts: torch.Tensor, with_memory: bool = False):
+        """features (T, B, F), episode_starts (T, B) -> mean, log_std (T, B, A), value (T, B), state and, with
+        `with_memory`, the LSTM's output (T, B, hidden): the recurrent features an asymmetric critic may read."""
         h, c = state
         if features.shape[0] == 1:  # one step (rollout, evaluation): fused cells beat the sequence kernel
             out, (h, c) = self._lstm_step(features[0], h, c, 1.0 - episode_starts[0].float())
-            x = self.mlp(out.unsqueeze(0))
-            log_std = self._bounded_log_std(x)
-            return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
-        # Run the LSTM over whole segments between the times at which any sequence starts an episode,
-        # masking the state only there (rl_games' RnnWithDones): one call instead of one per step.
+            memory = out.unsqueeze(0)
+        else:
+            memory, (h, c) = self._lstm_sequence(features, h, c, episode_starts)
+        x = self.mlp(memory)
+        outputs = self.mean(x), self._bounded_log_std(x), self.value(x).squeeze(-1), (h, c)
+        return (*outputs, memory) if with_memory else outputs
+
+    def _lstm_sequence(self, features: torch.Tensor, h: torch.Tensor, c: torch.Tensor, episode_starts: torch.Tensor):
+        """The LSTM over (T, B, F), run over whole segments between the times at which any sequence starts an
+        episode, masking the state only there (rl_games' RnnWithDones): one call instead of one per step."""
         starts = episode_starts.float()
         cuts = [0] + [t for t in range(1, starts.shape[0]) if bool(starts[t].any())] + [starts.shape[0]]
         outputs = []
@@ -105,9 +111,7 @@ class RecurrentActorHead(nn.Module):
             keep = (1.0 - starts[begin]).view(1, -1, 1)
             out, (h, c) = self.lstm(features[begin:end], (h * keep, c * keep))
             outputs.append(out)
-        x = self.mlp(torch.cat(outputs, dim=0))
-        log_std = self._bounded_log_std(x)
-        return self.mean(x), log_std, self.value(x).squeeze(-1), (h, c)
+        return torch.cat(outputs, dim=0), (h, c)
 
     def _bounded_log_std(self, x: torch.Tensor) -> torch.Tensor:
         raw = self.log_std(x) if self.log_std_mode == "state" else self.log_std.expand(*x.shape[:-1], -1)

@@ -60,7 +60,7 @@ class VisuoTactilePolicy(nn.Module):
         self._right_key = next((k for k, role in self.roles.items() if role == "right"), None)
         self.critic = None
         if critic is not None:
-            self.critic = critic(in_dim=critic_state_dim)
+            self.critic = critic(in_dim=critic_state_dim, memory_dim=self.head.hidden)
             self.critic_normalizer = RunningNormalizer((critic_state_dim,))
         self.feature_dim = features
 
@@ -83,14 +83,17 @@ class VisuoTactilePolicy(nn.Module):
         return self.head.initial_state(batch, device)
 
     @torch.no_grad()
-    def update_normalizers(self, obs: dict) -> None:
-        keys = self.vector_keys + self.force_field_keys + (["critic_state"] if self.critic is not None else [])
+    def update_normalizers(self, obs: dict, actor: bool = True) -> None:
+        """Update the input statistics from a batch of observations: the actor's unless `actor` is false (it then
+        acts exactly as before), and the critic's."""
+        actor_keys = self.vector_keys + self.force_field_keys if actor else []
+        keys = actor_keys + (["critic_state"] if self.critic is not None else [])
         for k in keys:  # one NaN would silently poison the statistics, and every output after them
             if not torch.isfinite(obs[k]).all():
                 raise FloatingPointError(f"observation {k!r} holds non-finite values; refusing to update its normalizer")
-        for k in self.vector_keys:
+        for k in self.vector_keys if actor else []:
             self.normalizers[k].update(obs[k])
-        if self.force_scale is not None:
+        if actor and self.force_scale is not None:
             self.force_scale.update(torch.cat([obs[k] for k in self.force_field_keys]))
         if self.critic is not None:
             self.critic_normalizer.update(obs["critic_state"])
@@ -115,10 +118,12 @@ class VisuoTactilePolicy(nn.Module):
         """
         lead = tuple(episode_starts.shape)
         features, embeddings = self._features(obs, lead)
-        mean, log_std, value, state = self.head(features, state, episode_starts)
+        memory = self.critic is not None and self.critic.reads_actor_memory
+        mean, log_std, value, state, *lstm_out = self.head(features, state, episode_starts, with_memory=memory)
         if self.critic is not None:
             critic_state = obs["critic_state"].reshape(-1, obs["critic_state"].shape[-1]).float()
-            value = self.critic(self.critic_normalizer(critic_state)).reshape(lead)
+            own = lstm_out[0].reshape(-1, lstm_out[0].shape[-1]) if memory else None
+            value = self.critic(self.critic_normalizer(critic_state), own).reshape(lead)
         if not with_aux:
             return mean, log_std, value, state
         sym = None

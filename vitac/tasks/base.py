@@ -64,6 +64,7 @@ class GraspedPartTask(composer.Task):
         self._action_delta = 0.0
         self._f_ref = np.zeros((2, 3, config.taxel_rows, config.taxel_cols))
         self.first_success_step = -1
+        self.episode_factors: dict = {}  # this episode's randomized values, by factor name (evaluation reports)
         self._build_observables()
 
     def _build_parts(self) -> None:
@@ -119,6 +120,16 @@ class GraspedPartTask(composer.Task):
         self._fixed_frame.mocap = "true"
 
     # ------------------------------------------------------------------------------- episode helpers
+    def _draw(self, random_state, name: str, low, high) -> np.ndarray:
+        """Uniform in [low, high] shrunk about its midpoint by the curriculum's scale (1: the full range), or the
+        midpoint with randomization off; kept as `episode_factors[name]` so that a report can group failures by it."""
+        low, high = np.asarray(low, float), np.asarray(high, float)
+        mid = 0.5 * (low + high)
+        value = mid + self.randomization_scale * (random_state.uniform(low, high) - mid) \
+            if self.config.randomization.enabled else mid
+        self.episode_factors[name] = value.tolist()
+        return value
+
     def _set_pad_compliance(self, physics, stiffness: float, damping: float) -> None:
         """Pad compliance as MuJoCo's (time constant, damping ratio): a stiffer elastomer responds faster."""
         physics.model.geom_solref[self._ids["pad_geoms"]] = (PAD_TIMECONST * np.sqrt(250.0 / stiffness), 1.0 + damping)
@@ -204,6 +215,7 @@ class GraspedPartTask(composer.Task):
                     randomization_scale=self.randomization_scale,
                     f_ref=self._f_ref.copy(), first_success_step=self.first_success_step,
                     action_delta=self._action_delta, mocap_pos=physics.data.mocap_pos.copy(),
+                    episode_factors=dict(self.episode_factors),
                     pad_solref=physics.model.geom_solref[ids["pad_geoms"]].copy(),
                     dof_damping=physics.model.dof_damping[ids["hand_dof"]].copy(),
                     # The last substep's solve cannot be recomputed from the state: keep it, with its state key.
@@ -224,6 +236,7 @@ class GraspedPartTask(composer.Task):
         self._f_ref = state["f_ref"].copy()
         self.first_success_step = state["first_success_step"]
         self._action_delta = state["action_delta"]
+        self.episode_factors = dict(state.get("episode_factors", {}))  # absent from older checkpoints
 
     # --------------------------------------------------------------------------------------- sensors
     def _velocity(self, physics, obj_type, obj_id):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import mujoco
@@ -57,24 +58,20 @@ class InsertionTask(GraspedPartTask):
 
     def initialize_episode(self, physics, random_state):
         cfg, r, ids = self.config, self.config.randomization, self._ids
-
-        def sample(low, high):
-            # Uniform in [low, high] shrunk about its midpoint by the curriculum's scale (1: the paper's).
-            low, high = np.asarray(low, float), np.asarray(high, float)
-            mid = 0.5 * (low + high)
-            return mid + self.randomization_scale * (random_state.uniform(low, high) - mid) if r.enabled else mid
-
+        self.episode_factors = {}
+        sample = functools.partial(self._draw, random_state)  # sample(factor name, low, high)
         # Socket pose (fixed base) and its observation noise, drawn once per episode.
-        physics.data.mocap_pos[ids["fixed_mocap"]] = sample(r.socket_pos_low, r.socket_pos_high)
+        physics.data.mocap_pos[ids["fixed_mocap"]] = sample("socket_pos", r.socket_pos_low, r.socket_pos_high)
         noise = r.socket_obs_noise
-        self._socket_noise = sample([-noise] * 3, [noise] * 3)
+        self._socket_noise = sample("socket_obs_noise", [-noise] * 3, [noise] * 3)
         # Contact and joint parameter noise.
-        stiffness, damping = sample(*r.pad_stiffness), sample(*r.pad_damping)
+        stiffness, damping = sample("pad_stiffness", *r.pad_stiffness), sample("pad_damping", *r.pad_damping)
         self._set_pad_compliance(physics, stiffness, damping)
-        physics.model.dof_damping[ids["hand_dof"]] = self._nominal_damping + sample(*r.joint_damping_noise)
+        damping_noise = sample("joint_damping_noise", *r.joint_damping_noise)
+        physics.model.dof_damping[ids["hand_dof"]] = self._nominal_damping + damping_noise
         # Hand pose: fingertip midpoint position and the three hinge angles.
-        pos = sample(r.ee_pos_low, r.ee_pos_high)
-        roll, pitch, yaw = sample(r.ee_rot_low, r.ee_rot_high)
+        pos = sample("ee_pos", r.ee_pos_low, r.ee_pos_high)
+        roll, pitch, yaw = sample("ee_rot", r.ee_rot_low, r.ee_rot_high)
         qpos = np.concatenate([pos, [yaw, pitch, roll]])
         physics.data.qpos[:] = physics.model.qpos0
         physics.data.qvel[:] = 0.0
@@ -82,7 +79,8 @@ class InsertionTask(GraspedPartTask):
         physics.data.ctrl[ids["hand_act"]] = qpos
         # Peg in the hand: its bottom `depth` below the fingertips, tilted about the closing axis
         # around the middle of the grasped segment.
-        depth, tilt = sample(*r.peg_in_hand_depth), sample(*r.peg_in_hand_tilt)
+        depth = sample("peg_in_hand_depth", *r.peg_in_hand_depth)
+        tilt = sample("peg_in_hand_tilt", *r.peg_in_hand_tilt)
         pivot = np.array([0.0, 0.0, -0.5 * (self.peg_geometry.length - depth)])
         tilt_rot = matrix_from_euler_zyx(0.0, tilt, 0.0)
         peg_rot_hand = tilt_rot @ DOWN  # peg z axis points up the hand, away from the fingertips

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 import mujoco
@@ -49,25 +50,22 @@ class ScrewTask(GraspedPartTask):
 
     def initialize_episode(self, physics, random_state):
         r, ids = self.config.randomization, self._ids
-
-        def sample(low, high):
-            # Uniform in [low, high] shrunk about its midpoint by the curriculum's scale (1: the full range).
-            low, high = np.asarray(low, float), np.asarray(high, float)
-            mid = 0.5 * (low + high)
-            return mid + self.randomization_scale * (random_state.uniform(low, high) - mid) if r.enabled else mid
-
-        bolt = np.concatenate([sample(r.bolt_pos_low, r.bolt_pos_high), [0.0]])
+        self.episode_factors = {}
+        sample = functools.partial(self._draw, random_state)  # sample(factor name, low, high)
+        bolt = np.concatenate([sample("bolt_pos", r.bolt_pos_low, r.bolt_pos_high), [0.0]])
         physics.data.mocap_pos[ids["fixed_mocap"]] = bolt
-        self._set_pad_compliance(physics, sample(*r.pad_stiffness), sample(*r.pad_damping))
-        physics.model.dof_damping[ids["hand_dof"]] = self._nominal_damping + sample(*r.joint_damping_noise)
+        stiffness, damping = sample("pad_stiffness", *r.pad_stiffness), sample("pad_damping", *r.pad_damping)
+        self._set_pad_compliance(physics, stiffness, damping)
+        damping_noise = sample("joint_damping_noise", *r.joint_damping_noise)
+        physics.model.dof_damping[ids["hand_dof"]] = self._nominal_damping + damping_noise
         # The nut engaged on the thread `turns` above its goal: its height fixes its yaw.
-        height = props.BOLT_HEAD_HEIGHT + float(sample(*r.start_turns)) * props.PITCH
+        height = props.BOLT_HEAD_HEIGHT + float(sample("start_turns", *r.start_turns)) * props.PITCH
         nut_yaw = thread_yaw(height)
         # The hand grips two opposite flats: its yaw is the nut's modulo a flat (60 deg), nearest to zero.
         flat = math.pi / 3
         grip_yaw = nut_yaw - flat * round(nut_yaw / flat)
         hand_x = np.array([math.cos(grip_yaw), math.sin(grip_yaw), 0.0])
-        depth, offset = float(sample(*r.grasp_depth)), float(sample(*r.grasp_offset))
+        depth, offset = float(sample("grasp_depth", *r.grasp_depth)), float(sample("grasp_offset", *r.grasp_offset))
         tcp = bolt + np.array([0.0, 0.0, height - depth]) - offset * hand_x
         # The hand's yaw joint turns about its own z axis, which points down: world yaw is minus the joint's.
         qpos = np.concatenate([tcp, [-grip_yaw, 0.0, 0.0]])
