@@ -34,18 +34,19 @@ log = logging.getLogger(__name__)
 def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, seed: int, out: str | None = None,
              randomization_scale: float | None = None, deterministic: bool = True,
              socket_obs_noise: float | None = None, randomize_only: list | None = None,
-             step_in_main: bool = True) -> dict:
+             step_in_main: bool = True, task_overrides: dict | None = None) -> dict:
     """Success statistics of the checkpoint's policy, deterministic (mean action) unless `deterministic` is
     false; the paper's randomization unless `randomization_scale` shrinks it (e.g. to the level a
     curriculum reached) or `socket_obs_noise` replaces the socket observation noise (0: what the noise costs);
-    `randomize_only` (names from RANDOMIZED_FACTORS) randomizes those factors alone, every other at its midpoint."""
+    `randomize_only` (names from RANDOMIZED_FACTORS) randomizes those factors alone, every other at its midpoint;
+    `task_overrides` replaces keys of the checkpoint's task settings (e.g. the simulation's noslip_iterations)."""
     check_int("episodes", episodes, 1)
     num_workers = resolve_groups(num_envs, num_workers, prefix="")
     check_int("seed", seed, 0)
     check_flag("deterministic", deterministic)
     check_flag("step_in_main", step_in_main)
     policy, cfg, settings = load_policy(ckpt)
-    settings = dict(settings, randomization=dict(settings["randomization"]))
+    settings = dict(settings, randomization=dict(settings["randomization"]), **(task_overrides or {}))
     if randomization_scale is not None:
         settings["randomization"]["scale"] = randomization_scale
     if socket_obs_noise is not None:
@@ -66,6 +67,7 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
                   randomization_scale=settings["randomization"]["scale"],
                   socket_obs_noise=settings["randomization"].get("socket_obs_noise"),
                   randomize_only=list(randomize_only) if randomize_only is not None else None,
+                  task_overrides=dict(task_overrides or {}),
                   policy="deterministic" if deterministic else "stochastic",
                   **episode_statistics(summary))
     only = "" if randomize_only is None else ".only-" + "-".join(randomize_only)
@@ -139,7 +141,7 @@ def main(cfg: DictConfig) -> None:
     else:
         report = evaluate(cfg.ckpt, cfg.episodes, cfg.num_envs, cfg.num_workers, cfg.seed, cfg.out,
                           cfg.randomization_scale, cfg.deterministic, cfg.socket_obs_noise, cfg.randomize_only,
-                          cfg.step_in_main)
+                          cfg.step_in_main, OmegaConf.to_container(cfg.task_overrides))
     print(json.dumps({k: v for k, v in report.items() if k not in PER_EPISODE}, indent=2))
 
 

@@ -196,6 +196,7 @@ def test_episode_end_reports_where_the_peg_ended():
         outcomes[name] = info
     e.close()
     assert inserted["outcome"] == "inserted" and abs(inserted["peg_height"]) < 1e-3 and inserted["peg_offset_xy"] < 5e-4
+    assert inserted["fingers_on_socket"] == 0 and 0.029 < inserted["grasp_depth"] < 0.040
     assert outcomes["still"]["outcome"] == "not over the socket" and outcomes["still"]["peg_offset_xy"] > 0.05
     # Driven straight down beside the socket, the peg hits the table and turns over in the grasp.
     assert outcomes["down"]["outcome"] == "dropped or knocked over" and outcomes["down"]["peg_tilt"] > 1.0
@@ -220,6 +221,19 @@ def test_episode_end_reports_the_values_its_randomization_drew():
     assert r.peg_in_hand_tilt[0] <= factors["peg_in_hand_tilt"] <= r.peg_in_hand_tilt[1]
     # The observation's hand position is the drawn one (the grasp settles with the hand held in place).
     np.testing.assert_allclose(obs["proprio"][:3], factors["ee_pos"], atol=2e-3)
+
+
+def test_a_peg_held_too_high_in_the_hand_sticks_part_way_with_the_fingers_on_the_socket_rim():
+    """The jam the policies' "stuck part-way" episodes end in, staged: with the peg's bottom 15 mm below the
+    fingertips (the hole is 23 mm deep), the oracle's descent stops when a finger link lands on the socket's top,
+    the peg 8 mm short of the floor, however hard the hand pushes."""
+    r = asdict(Randomization().only(["ee_pos"]))
+    r["peg_in_hand_depth"] = [0.015, 0.015]
+    e = TaskEnv({"observations": ["proprio"], "randomization": r}, seed=0)
+    info = e.run_oracle_episode(seed=3)
+    e.close()
+    assert info["outcome"] == "stuck part-way in the hole" and info["fingers_on_socket"] >= 1
+    assert 0.006 < info["peg_height"] < 0.010 and info["grasp_depth"] == pytest.approx(0.015, abs=0.002)
 
 
 def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis():

@@ -127,7 +127,8 @@ def read_report(path: Path) -> dict:
 
 # What a task's outcome() measures, as the table shows it: (column, factor from SI units).
 COLUMNS = {"peg_offset_xy": ("offset from axis, mm", 1000.0), "peg_height": ("height above floor, mm", 1000.0),
-           "peg_tilt": ("tilt, deg", math.degrees(1.0)), "turns_to_go": ("thread turns to go", 1.0),
+           "peg_tilt": ("tilt, deg", math.degrees(1.0)), "grasp_depth": ("peg bottom below fingertips, mm", 1000.0),
+           "fingers_on_socket": ("finger links on the socket", 1.0), "turns_to_go": ("thread turns to go", 1.0),
            "nut_offset_xy": ("offset from axis, mm", 1000.0), "nut_tilt": ("tilt, deg", math.degrees(1.0))}
 # Reports written before 'final_state' held the peg's values converted already, under these names.
 OLD_COLUMNS = {"offset_xy_mm": "offset from axis, mm", "height_mm": "height above floor, mm", "tilt_deg": "tilt, deg"}

@@ -59,13 +59,14 @@ class ParallelGripper(composer.Entity):
         for joint, kp, kv in zip(self.joints, prop_gains, deriv_gains, strict=True):
             self.actuators.append(root.actuator.add("position", name=joint.name, joint=joint, kp=kp, kv=kv))
         self.fingers, self.pads, self.pad_sites, self.finger_joints, self.finger_actuators = [], [], [], [], []
+        self.links = []  # the finger links behind the pads: they collide with the world
         for side, sign in (("left", 1.0), ("right", -1.0)):
             finger = self.hand.add("body", name=f"{side}_finger", gravcomp=1)
             finger.add("inertial", pos=(0, sign * 0.008, -0.03), mass=0.02, diaginertia=(1e-5, 1e-5, 1e-5))
             joint = finger.add("joint", name=f"{side}_finger", type="slide", axis=(0, sign, 0), range=(0, 0.04),
                                damping=0.0, frictionloss=0.0)
-            finger.add("geom", name=f"{side}_link", type="box", size=(0.011, 0.005, 0.5 * FINGER_LENGTH),
-                       pos=(0, sign * (PAD_THICKNESS + 0.005), -0.5 * FINGER_LENGTH), **link)
+            self.links.append(finger.add("geom", name=f"{side}_link", type="box", size=(0.011, 0.005, 0.5 * FINGER_LENGTH),
+                       pos=(0, sign * (PAD_THICKNESS + 0.005), -0.5 * FINGER_LENGTH), **link))
             pad = finger.add("geom", name=f"{side}_pad", type="box",
                              size=(0.5 * PAD_WIDTH, 0.5 * PAD_THICKNESS, 0.5 * PAD_LENGTH),
                              pos=(0, sign * 0.5 * PAD_THICKNESS, -0.5 * PAD_LENGTH),

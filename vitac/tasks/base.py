@@ -42,7 +42,8 @@ class GraspedPartTask(composer.Task):
 
     def __init__(self, config: GraspTaskConfig, offscreen_size: int | None = None):
         self.config = config
-        self._arena = Arena(offscreen_size=offscreen_size or config.camera_size)
+        self._arena = Arena(offscreen_size=offscreen_size or config.camera_size,
+                            noslip_iterations=config.noslip_iterations)
         self.gripper = ParallelGripper(
             hand_mass=config.hand_mass, hand_inertia=config.hand_inertia, prop_gains=config.prop_gains,
             deriv_gains=config.deriv_gains, joint_damping=config.joint_damping, finger_kp=config.finger_kp,
@@ -95,6 +96,7 @@ class GraspedPartTask(composer.Task):
             hand_body=bind(self.gripper.hand).element_id,
             pad_sites=[bind(s).element_id for s in self.gripper.pad_sites],
             pad_geoms=[bind(g).element_id for g in self.gripper.pads],
+            link_geoms=[bind(g).element_id for g in self.gripper.links],
             held_body=bind(self.held.body).element_id,
             held_geoms=set(np.flatnonzero(m.geom_bodyid == bind(self.held.body).element_id).tolist()),
             held_qpos=m.jnt_qposadr[m.body_jntadr[bind(self._held_frame).element_id]],
@@ -191,6 +193,16 @@ class GraspedPartTask(composer.Task):
         return self._step
 
     # ------------------------------------------------------------------------------------ task state
+    def fingers_on_fixed_part(self, physics) -> int:
+        """How many finger links (0-2) touch the fixed part now: a hand resting on it cannot push the part further."""
+        d, ids = physics.data.ptr, self._ids
+        touching = set()
+        for g1, g2 in d.contact.geom[:d.ncon]:
+            for link, other in ((g1, g2), (g2, g1)):
+                if link in ids["link_geoms"] and other in ids["fixed_geoms"]:
+                    touching.add(link)
+        return len(touching)
+
     def fixed_pos(self, physics) -> np.ndarray:
         return physics.data.mocap_pos[self._ids["fixed_mocap"]].copy()
 

@@ -63,6 +63,9 @@ class GraspTaskConfig:
     finger_kp: float = 400.0
     finger_kd: float = 2.0
     pad_friction: float = 1.0
+    # MuJoCo's noslip solver passes per physics step (0: off): soft contacts let a held part creep along the pads
+    # under a steady push, a slip PhysX's static friction does not have (docs/environment.md).
+    noslip_iterations: int = 0
     taxel_rows: int = 32
     taxel_cols: int = 32
     taxel_margin: float = 0.0005
@@ -129,6 +132,9 @@ class GraspTaskConfig:
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
                 refuse(f"{key}.{name}", value, "a positive integer")
+        if not isinstance(self.noslip_iterations, (int, np.integer)) or isinstance(self.noslip_iterations, bool) \
+                or self.noslip_iterations < 0:
+            refuse(f"{key}.noslip_iterations", self.noslip_iterations, "an integer >= 0 (0: no noslip solver)")
         for name in ("control_hz", "pos_action_scale", "rot_action_scale", "hand_mass", "hand_inertia", "finger_kp",
                      "tactile_kn", "camera_fovy"):
             value = getattr(self, name)

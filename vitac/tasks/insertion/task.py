@@ -147,7 +147,12 @@ class InsertionTask(GraspedPartTask):
             label = "stuck part-way in the hole"
         else:
             label = "on or above the socket"
-        return dict(outcome=label, peg_offset_xy=offset, peg_height=height, peg_tilt=tilt)
+        # Why a peg stops part-way: how far below the fingertips its bottom is held now (it slides up the pads when
+        # pushed against the socket) and whether a finger link rests on the socket.
+        ids, d = self._ids, physics.data
+        grasp_depth = float((d.site_xpos[ids["tcp"]] - d.xpos[ids["held_body"]]) @ d.xmat[ids["held_body"]][2::3])
+        return dict(outcome=label, peg_offset_xy=offset, peg_height=height, peg_tilt=tilt, grasp_depth=grasp_depth,
+                    fingers_on_socket=self.fingers_on_fixed_part(physics))
 
     def get_state(self, physics) -> dict:
         return dict(super().get_state(physics), socket_noise=self._socket_noise.copy())
