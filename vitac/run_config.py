@@ -45,7 +45,8 @@ def build_policy_from_config(cfg: DictConfig, task_config: GraspTaskConfig):
                          f"expected a subset of {list(specs)}")
     actor = {k: specs[k] for k in specs if k in cfg.obs.modalities}
     return build_policy(cfg.encoder, cfg.fusion, cfg.head, cfg.reg, cfg.critic, actor,
-                        critic_state_dim=specs["critic_state"].shape[0], obs_name=cfg.obs.get("name"))
+                        critic_state_dim=specs["critic_state"].shape[0], obs_name=cfg.obs.get("name"),
+                        residual=cfg.get("residual"))
 
 
 def load_policy(ckpt: str | Path, key: str = "ckpt"):

@@ -101,3 +101,32 @@ def test_a_critic_reading_the_actors_memory_starts_as_the_teachers_and_moves_no_
     assert policy.critic.mlp[0].weight.grad[:, -policy.head.hidden:].abs().sum() > 0  # it can learn to use it
     actor = [p for name, p in policy.named_parameters() if not name.startswith("critic")]
     assert all(p.grad is None for p in actor)  # and the critic's loss never reaches the actor
+
+
+def test_a_residual_policy_starts_as_its_student_bit_for_bit_and_trains_only_its_head_and_critic(student, tmp_path):
+    from vitac.run_config import load_policy
+    from vitac.train import train
+
+    job = FINETUNE[:3] + ["finetune=residual", "envs.num_envs=2", "envs.num_workers=0", "algo.horizon=16",
+                          "algo.seq_len=8", "algo.minibatch_size=16", "algo.lr=1e-3", "algo.critic_warmup_iterations=1",
+                          "eval.every=10", "checkpoint.every_n_epochs=1", f"init_ckpt={student}"]
+    train(compose_config(job + ["trainer.iterations=1"], output_dir=tmp_path / "start"))
+    distilled, _, _ = load_policy(student)
+    residual, _, _ = load_policy(tmp_path / "start" / "checkpoints" / "last.ckpt")  # after the critic's warm-up
+    assert residual.residual is not None and torch.equal(residual.residual.delta.weight, torch.zeros_like(
+        residual.residual.delta.weight))
+    torch.manual_seed(0)
+    T, B = 6, 2
+    obs = {"proprio": torch.randn(T, B, 19), "tactile_left": torch.randn(T, B, 3, 32, 32),
+           "tactile_right": torch.randn(T, B, 3, 32, 32), "critic_state": torch.randn(T, B, 42)}
+    starts = torch.zeros(T, B)
+    starts[3, 1] = 1.0
+    with torch.no_grad():
+        ours = residual(obs, residual.initial_state(B), starts)[0]
+        theirs = distilled(obs, distilled.initial_state(B), starts)[0]
+    assert torch.equal(ours, theirs)  # the student's actions, bit for bit
+    train(compose_config(job + ["trainer.iterations=3", f"resume={tmp_path / 'start'}"], output_dir=tmp_path / "more"))
+    after, _, _ = load_policy(tmp_path / "more" / "checkpoints" / "last.ckpt")
+    moved = {k for k, v in after.state_dict().items() if not torch.equal(v, residual.state_dict()[k])}
+    assert any(k.startswith("residual.") for k in moved)
+    assert all(k.startswith(("residual.", "critic")) for k in moved), sorted(moved)  # the student never moves

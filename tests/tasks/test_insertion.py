@@ -236,6 +236,40 @@ def test_a_peg_held_too_high_in_the_hand_sticks_part_way_with_the_fingers_on_the
     assert 0.006 < info["peg_height"] < 0.010 and info["grasp_depth"] == pytest.approx(0.015, abs=0.002)
 
 
+def _grasp_depth_while_pushing_on_the_socket_top(noslip_iterations: int, push_steps: int) -> tuple[float, float]:
+    """The peg's bottom below the fingertips (m) after it lands on the socket's top face 6 mm off the hole and
+    after `push_steps` more steps of the hand pushing down at full action."""
+    r = asdict(Randomization().only(["ee_pos"]))
+    r["peg_in_hand_depth"] = [0.032, 0.032]
+    e = TaskEnv({"observations": ["proprio"], "randomization": r, "episode_steps": 150 + 50 + push_steps,
+                 "noslip_iterations": noslip_iterations}, seed=0)
+    e.reset(seed=3)
+    task, physics = e.task, e.physics
+    peg, tcp = task._ids["held_body"], task._ids["tcp"]
+    top = task.socket_pos(physics) + (0.006, 0.0, 0.023)
+    depths = []
+    for step in range(150 + 50 + push_steps):
+        action = np.zeros(6)
+        action[:3] = np.clip((top + (0, 0, 0.005) - physics.data.xpos[peg]) / 0.01, -1, 1)
+        if step >= 150:
+            action[2] = -1.0
+        e.step(action)
+        if step + 1 in (200, 200 + push_steps):
+            d = physics.data
+            depths.append(float((d.site_xpos[tcp] - d.xpos[peg]) @ d.xmat[peg][2::3]))
+    e.close()
+    return depths[0], depths[1]
+
+
+def test_a_held_peg_creeps_up_the_pads_under_a_steady_push_unless_the_noslip_solver_runs():
+    """MuJoCo's soft contacts let a held peg creep along the pads under a steady push below the friction limit
+    (the policies' jams); PhysX, TacSL's engine, holds it. With noslip passes it slips on impact, then holds."""
+    landed, pushed = _grasp_depth_while_pushing_on_the_socket_top(0, 200)
+    assert landed - pushed > 0.003  # 3 mm or more in 200 steps (3.3 s), and still creeping
+    landed, pushed = _grasp_depth_while_pushing_on_the_socket_top(3, 200)
+    assert abs(landed - pushed) < 0.0003
+
+
 def test_lateral_reward_shaping_subtracts_the_pegs_distance_from_the_hole_axis():
     rewards = []
     for scale in (0.0, 2.0):

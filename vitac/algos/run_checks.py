@@ -61,8 +61,8 @@ RUN_KEYS = ("seed", "resume", "row", "critic_ckpt", "freeze_critic", "teacher_ck
 PLAIN_GROUPS = {"task": None, "obs": ("name", "modalities"), "preset": ("name",), "logger": ("wandb", "project", "name"),
                 "trainer": ("accelerator", "rollout_threads", "update_threads", "deterministic", "iterations",
                             "max_nonfinite_iterations")}
-TARGET_GROUPS = ("algo", "envs", "curriculum", "eval", "checkpoint", "fusion", "reg", "head", "critic", "encoder.image",
-                 "encoder.vector")
+TARGET_GROUPS = ("algo", "envs", "curriculum", "eval", "checkpoint", "fusion", "reg", "head", "critic", "residual",
+                 "encoder.image", "encoder.vector")
 
 
 def accepted_keywords(target) -> set | None:

@@ -12,7 +12,7 @@ from vitac.utils.checkpoint import load_checkpoint, state_mismatch
 
 log = logging.getLogger(__name__)
 
-POLICY_GROUPS = ("obs", "encoder", "fusion", "head", "reg", "critic")
+POLICY_GROUPS = ("obs", "encoder", "fusion", "head", "reg", "critic", "residual")
 
 
 def check_resume(run_dir: str, policy, num_envs: int, config: dict) -> Path:

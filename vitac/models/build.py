@@ -9,9 +9,10 @@ from vitac.utils.instantiate import instantiate
 
 
 def build_policy(encoder, fusion, head, reg, critic, obs_specs: dict[str, ObservationSpec],
-                 critic_state_dim: int | None = None, obs_name: str | None = None):
-    """Each argument is that group's config node; `obs_specs` are the actor's observations as the task declares
-    them. A fusion whose roles the observations lack is refused first, naming both."""
+                 critic_state_dim: int | None = None, obs_name: str | None = None, residual=None):
+    """Each argument is that group's config node (`residual` absent or null in runs without one); `obs_specs` are
+    the actor's observations as the task declares them. A fusion whose roles the observations lack is refused
+    first, naming both."""
     roles = {k: s.role for k, s in obs_specs.items() if s.kind == "image"}
     check_fusion(fusion["_target_"], roles, obs_name)
     if reg.get("lambda_sym", 0) and not {"left", "right"} <= set(roles.values()):
@@ -27,4 +28,5 @@ def build_policy(encoder, fusion, head, reg, critic, obs_specs: dict[str, Observ
         regularizer=instantiate(reg),
         critic=instantiate(critic) if has_critic else None,
         critic_state_dim=critic_state_dim if has_critic else None,
+        residual=instantiate(residual) if residual is not None and residual.get("_target_") else None,
     )

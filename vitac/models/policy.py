@@ -25,11 +25,14 @@ class VisuoTactilePolicy(nn.Module):
         regularizer: the symmetry prior (lambda_sym 0 turns it off).
         critic: builds the asymmetric critic from the critic-state size, or None to use the head's value.
         critic_state_dim: size of the critic state when `critic` is given.
+        residual: builds a `vitac.models.residual.ResidualHead` from the head's LSTM width, or None. With one, the
+            rest of the actor (encoders, fusion, head and their input statistics) is a frozen student: only the
+            residual head (and the critic) learn, and the student's weights load by their own names.
     """
 
     def __init__(self, obs_specs: dict[str, ObservationSpec], image_encoder: Callable, vector_encoder: Callable,
                  fusion: Callable, head: Callable, regularizer: SymmetryRegularizer, critic: Callable | None = None,
-                 critic_state_dim: int | None = None):
+                 critic_state_dim: int | None = None, residual: Callable | None = None):
         super().__init__()
         critic_only = sorted(k for k, spec in obs_specs.items() if spec.critic_only)
         if critic_only:
@@ -63,6 +66,12 @@ class VisuoTactilePolicy(nn.Module):
             self.critic = critic(in_dim=critic_state_dim, memory_dim=self.head.hidden)
             self.critic_normalizer = RunningNormalizer((critic_state_dim,))
         self.feature_dim = features
+        self.residual = None
+        if residual is not None:
+            for name, parameter in self.named_parameters():
+                if not name.startswith("critic"):
+                    parameter.requires_grad_(False)
+            self.residual = residual(in_dim=self.head.hidden, action_dim=self.head.mean.out_features)
 
     @property
     def input_keys(self) -> list[str]:
@@ -86,6 +95,7 @@ class VisuoTactilePolicy(nn.Module):
     def update_normalizers(self, obs: dict, actor: bool = True) -> None:
         """Update the input statistics from a batch of observations: the actor's unless `actor` is false (it then
         acts exactly as before), and the critic's."""
+        actor = actor and self.residual is None  # a residual policy's student keeps its statistics
         actor_keys = self.vector_keys + self.force_field_keys if actor else []
         keys = actor_keys + (["critic_state"] if self.critic is not None else [])
         for k in keys:  # one NaN would silently poison the statistics, and every output after them
@@ -118,11 +128,13 @@ class VisuoTactilePolicy(nn.Module):
         """
         lead = tuple(episode_starts.shape)
         features, embeddings = self._features(obs, lead)
-        memory = self.critic is not None and self.critic.reads_actor_memory
+        memory = self.residual is not None or (self.critic is not None and self.critic.reads_actor_memory)
         mean, log_std, value, state, *lstm_out = self.head(features, state, episode_starts, with_memory=memory)
+        if self.residual is not None:
+            mean, log_std = self.residual(lstm_out[0], mean)
         if self.critic is not None:
             critic_state = obs["critic_state"].reshape(-1, obs["critic_state"].shape[-1]).float()
-            own = lstm_out[0].reshape(-1, lstm_out[0].shape[-1]) if memory else None
+            own = lstm_out[0].reshape(-1, lstm_out[0].shape[-1]) if self.critic.reads_actor_memory else None
             value = self.critic(self.critic_normalizer(critic_state), own).reshape(lead)
         if not with_aux:
             return mean, log_std, value, state
