@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 import yaml
@@ -177,6 +178,25 @@ def test_report_draws_both_pads_force_fields_over_an_episode_for_each_policy(tmp
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "out" / "force_fields.png").stat().st_size > 0
+
+
+def test_a_negative_residual_force_field_is_drawn_visibly_not_as_zero(tmp_path):
+    """The policy's fields are residuals against the grasp, negative where a pad presses less: they are drawn on a
+    diverging scale, where a dip shows as blue and a rise as red (a scale starting at 0 drew every dip black)."""
+    import matplotlib.image as mpimg
+
+    from vitac.analysis import force_fields
+
+    left = np.zeros((6, 32, 32))
+    left[:, 4:28, 4:16] = -1.5  # the pad presses less than at the grasp over a large patch
+    right = np.zeros((6, 32, 32))
+    right[:, 4:28, 4:16] = 1.5
+    force_fields.figure({"policy": dict(left=left, right=right, success=True)}, tmp_path / "f.png", columns=3)
+    rgb = mpimg.imread(tmp_path / "f.png")[..., :3]
+    third = rgb.shape[0] // 3  # three rows of panels: the left pad's fields, the right pad's, the imbalance plot
+    left_row, right_row = rgb[:third, : int(0.8 * rgb.shape[1])], rgb[third:2 * third, : int(0.8 * rgb.shape[1])]
+    assert (left_row[..., 2] > left_row[..., 0] + 0.2).sum() > 1000  # the dip, blue
+    assert (right_row[..., 0] > right_row[..., 2] + 0.2).sum() > 1000  # the rise, red
 
 
 def test_report_refuses_a_run_whose_evaluation_report_was_cut_short_naming_it(tmp_path):

@@ -1,4 +1,5 @@
-"""Episode videos: outside view, wrist view, and both pads' force fields (shear arrows over normal force)."""
+"""Episode videos: outside view, wrist view, and both pads' raw force fields (shear arrows over normal force, which
+is never negative; the policy sees them minus the fields at grasp)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ def _frame(fig, axes, outside, wrist, left, right, step: int, info: dict) -> np.
     axes[1].imshow(wrist)
     axes[1].set_title("wrist 64x64", fontsize=8)
     vmax = max(float(np.abs(left[2]).max()), float(np.abs(right[2]).max()), 1e-6)
-    for ax, field, name in ((axes[2], left, "left pad"), (axes[3], right[:, ::-1], "right pad (rows flipped)")):
+    for ax, field, name in ((axes[2], left, "left pad, raw"), (axes[3], right[:, ::-1], "right pad, raw (rows flipped)")):
         ax.imshow(field[2], cmap="magma", vmin=0, vmax=vmax)
         rows, cols = np.mgrid[0:field.shape[1]:3, 0:field.shape[2]:3]
         shear = field[:2, ::3, ::3]  # every third taxel

@@ -3,7 +3,9 @@
 Each policy runs the same episode (same seed); at evenly spaced steps the figure shows the left pad's normal
 force field above the right pad's mirrored into the left pad's frame (`vitac.models.symmetry.mirror_pad`), so a
 bilaterally symmetric grasp shows two equal maps, and below them the left-right imbalance over the whole
-episode: the mean absolute difference of the two normal maps.
+episode: the mean absolute difference of the two normal maps. The fields are the residuals the policy sees
+(paper eq. 2: the field minus the one at grasp), negative where a pad presses less than at the grasp, so they
+are drawn on a diverging scale centred on zero (red: more pressure than at grasp, blue: less).
 """
 
 from __future__ import annotations
@@ -55,13 +57,14 @@ def figure(episodes: dict[str, dict], out: Path, columns: int = 6) -> Path:
         for c, step in enumerate(steps):
             for r, side in enumerate(("left", "right")):
                 ax = axes[2 * p + r, c]
-                ax.imshow(episode[side][step], cmap="magma", vmin=0, vmax=peak)
+                image = ax.imshow(episode[side][step], cmap="RdBu_r", vmin=-peak, vmax=peak)
                 ax.set_xticks([])
                 ax.set_yticks([])
                 if c == 0:
                     ax.set_ylabel(f"{name}\n{'left' if r == 0 else 'right, mirrored'}", fontsize=7)
                 if p == 0 and r == 0:
                     ax.set_title(f"step {step}", fontsize=8)
+    fig.colorbar(image, ax=axes[:-1].ravel().tolist(), shrink=0.6, label="normal residual (eq. 2)")
     gs = axes[-1, 0].get_gridspec()
     for ax in axes[-1]:
         ax.remove()
@@ -71,7 +74,6 @@ def figure(episodes: dict[str, dict], out: Path, columns: int = 6) -> Path:
         imbalance.plot(diff, label=f"{name} ({'inserted' if episode['success'] else 'not inserted'})")
     imbalance.set(xlabel="control step", ylabel="mean |L - mirror(R)|")
     imbalance.legend(fontsize=7)
-    fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
