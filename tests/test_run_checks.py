@@ -3,6 +3,8 @@ ignore, missing or corrupt checkpoints, resumes that cannot continue exactly, th
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 
@@ -45,7 +47,9 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
     ("algo.lr_min=0", r"algo\.lr_min=0 is not allowed: expected a number > 0"),
     ("algo.lr_schedule=adaptive algo.lr_max=1e-5", r"algo\.lr=0\.0001 is not allowed: expected a number within "
                                                    r"\[algo\.lr_min, algo\.lr_max\] = \[1e-06, 1e-05\]"),
-    ("seed=abc", r"seed='abc' is not allowed: expected an integer >= 0 or null"),
+    ("seed=abc", r"seed='abc' is not allowed: expected an integer in \[0, 2147483647\] or null"),
+    ("seed=4294967296", r"seed=4294967296 is not allowed: expected an integer in \[0, 2147483647\] or null"),
+    ("algo.critic_warmup_iterations=-1", r"algo\.critic_warmup_iterations=-1 is not allowed: expected an integer >= 0"),
     ("trainer.update_threads=0", r"trainer\.update_threads=0 is not allowed: expected a positive integer or auto"),
     ("envs.num_workers=many", r"envs\.num_workers='many' is not allowed: expected an integer >= 0 or auto"),
     ("trainer.deterministic=maybe", r"trainer\.deterministic='maybe' is not allowed: expected true or false"),
@@ -97,13 +101,58 @@ def test_train_and_evaluate_run_their_environments_in_the_auto_groups(tmp_path, 
     (dict(episodes=0), r"episodes=0 is not allowed: expected a positive integer"),
     (dict(num_envs=0), r"num_envs=0 is not allowed: expected a positive integer"),
     (dict(num_workers=3), r"num_workers=3 is not allowed: expected 0 or a divisor of num_envs=4"),
-    (dict(seed="abc"), r"seed='abc' is not allowed: expected an integer >= 0"),
+    (dict(seed="abc"), r"seed='abc' is not allowed: expected an integer in \[0, 2\^32 - 1 - episodes\]"),
+    (dict(seed=2**32 - 5), r"seed=4294967291 is not allowed: expected an integer in \[0, 2\^32 - 1 - episodes\] = "
+                           r"\[0, 4294967285\]"),
+    (dict(socket_obs_noise=float("nan")), r"socket_obs_noise=nan is not allowed: expected a finite number"),
+    (dict(task_overrides={"socket_friction": float("inf")}), r"task_overrides\.socket_friction=inf is not allowed"),
     (dict(deterministic="yes"), r"deterministic='yes' is not allowed: expected true or false"),
 ])
 def test_bad_evaluation_arguments_are_refused_before_the_checkpoint_is_read(monkeypatch, arguments, pattern):
     monkeypatch.setattr("vitac.evaluate.load_policy", lambda *a, **k: pytest.fail("checkpoint read"))
     with pytest.raises(ValueError, match=pattern):
         evaluate("run/last.ckpt", **(dict(episodes=10, num_envs=4, num_workers=2, seed=0) | arguments))
+
+
+def _float_keys(node, key=""):
+    """Every float setting of a resolved config, with its dotted key (list entries as key[i])."""
+    if isinstance(node, dict):
+        for name, value in node.items():
+            yield from _float_keys(value, f"{key}.{name}" if key else name)
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            yield from _float_keys(value, f"{key}[{i}]")
+    elif isinstance(node, float):
+        yield key
+
+
+@pytest.mark.parametrize("experiment", ["experiment=table1/fusion_cmt_sym", "experiment=recipe/privileged_32envs",
+                                        "task=screw", "finetune=kickstart"])
+def test_every_float_setting_refuses_nan_and_infinity_by_its_key(experiment):
+    """The float keys come from the composed configs, so a new key is covered without editing this test."""
+    from omegaconf import OmegaConf
+
+    from vitac.algos.run_checks import check_run
+
+    resolved = OmegaConf.to_container(compose_config([experiment]), resolve=True)
+    keys = list(_float_keys(resolved))
+    assert len(keys) > 40
+    for key in keys:
+        for bad in (float("nan"), float("inf")):
+            cfg = OmegaConf.create(resolved)
+            OmegaConf.update(cfg, key.replace("[", ".").replace("]", ""), bad)
+            with pytest.raises(ValueError, match=rf"{re.escape(key)}={bad} is not allowed: expected a finite number"):
+                check_run(OmegaConf.to_container(cfg))
+
+
+def test_a_task_config_refuses_nan_however_it_is_built():
+    from vitac.envs.gym_env import TaskEnv
+
+    with pytest.raises(ValueError, match=r"task\.randomization\.pad_stiffness\[1\]=nan is not allowed"):
+        TaskEnv({"randomization": {"pad_stiffness": [150.0, float("nan")]}})
+    env = TaskEnv({"observations": ["proprio"]})
+    env.close()
+    env.close()  # a second close is harmless
 
 
 def test_resume_that_cannot_continue_exactly_is_refused_before_any_environment_is_built(tmp_path, monkeypatch):
@@ -122,7 +171,8 @@ def test_resume_that_cannot_continue_exactly_is_refused_before_any_environment_i
 def test_every_algo_key_has_its_check():
     from vitac.algos import run_checks as c
 
-    checked = set(c.POSITIVE_INTS + c.POSITIVE_NUMBERS + c.NON_NEGATIVE_NUMBERS + c.FRACTIONS + c.FLAGS + c.SCHEDULE)
+    checked = set(c.POSITIVE_INTS + c.NON_NEGATIVE_INTS + c.POSITIVE_NUMBERS + c.NON_NEGATIVE_NUMBERS + c.FRACTIONS
+                  + c.FLAGS + c.SCHEDULE)
     assert set(compose_config(["algo=ppo"]).algo) - {"_target_", "_partial_"} == checked
 
 

@@ -24,7 +24,7 @@ from vitac.envs.gym_env import TaskEnv
 from vitac.envs.vector_env import TaskVectorEnv
 from vitac.run_config import load_policy
 from vitac.tasks import make_task_config
-from vitac.utils.checks import check_flag, check_int, refuse, resolve_groups
+from vitac.utils.checks import check_flag, check_int, is_int, refuse, refuse_non_finite, resolve_groups
 from vitac.utils.quiet import quiet_third_party
 from vitac.utils.records import write_json
 
@@ -42,8 +42,10 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
     `task_overrides` replaces keys of the checkpoint's task settings (e.g. the simulation's noslip_iterations)."""
     check_int("episodes", episodes, 1)
     num_workers = resolve_groups(num_envs, num_workers, prefix="")
-    check_int("seed", seed, 0)
+    check_seed(seed, episodes)
     check_flag("deterministic", deterministic)
+    refuse_non_finite(dict(randomization_scale=randomization_scale, socket_obs_noise=socket_obs_noise,
+                           task_overrides=task_overrides or {}))
     check_flag("step_in_main", step_in_main)
     policy, cfg, settings = load_policy(ckpt)
     settings = dict(settings, randomization=dict(settings["randomization"]), **(task_overrides or {}))
@@ -76,6 +78,12 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
     return report
 
 
+def check_seed(seed, episodes: int) -> None:
+    """Episode k is seeded seed + k, and numpy's seeds end at 2^32 - 1."""
+    if not is_int(seed) or not 0 <= seed <= 2**32 - 1 - episodes:
+        refuse("seed", seed, f"an integer in [0, 2^32 - 1 - episodes] = [0, {2**32 - 1 - episodes}]")
+
+
 def episode_statistics(summary: dict) -> dict:
     """The report's success statistics, how each episode ended, as the task's outcome() reports it (m, rad), and
     what each started from: the values its randomization drew, by factor (`vitac.runs outcomes --by-factor`)."""
@@ -96,7 +104,7 @@ def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out
     if policy not in ("oracle", "random"):
         refuse("policy", policy, "one of ['ckpt', 'oracle', 'random']")
     check_int("episodes", episodes, 1)
-    check_int("seed", seed, 0)
+    check_seed(seed, episodes)
     task_config = make_task_config(settings)
     # One cheap observation: a scripted controller reads the physics, not the observations.
     task_config.observations = [next(k for k, s in task_config.observation_specs().items() if s.kind == "vector")]

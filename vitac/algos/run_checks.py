@@ -21,12 +21,16 @@ from vitac.utils.checks import (
     is_int,
     is_number,
     refuse,
+    refuse_non_finite,
     resolve_groups,
     resolve_threads,
 )
 
+MAX_SEED = 2**31 - 1  # numpy's and Lightning's seeds end at 2^32 - 1, and environment i is seeded with seed + i
+
 # PPO's keys (conf/algo/ppo.yaml) by kind; the schedule's are checked by building it.
 POSITIVE_INTS = ("horizon", "seq_len", "minibatch_size", "mini_epochs")
+NON_NEGATIVE_INTS = ("critic_warmup_iterations",)
 POSITIVE_NUMBERS = ("lr", "clip", "grad_norm")
 NON_NEGATIVE_NUMBERS = ("critic_coef", "entropy_coef", "bounds_loss_coef")
 FRACTIONS = ("gamma", "gae_lambda")  # in [0, 1]
@@ -38,7 +42,8 @@ def check_ppo(algo: dict, num_envs: int) -> None:
     """Refuse any out-of-range value of conf/algo/ppo.yaml (as composed), with its key."""
     for name in POSITIVE_INTS:
         check_int(f"algo.{name}", algo[name], 1)
-    check_int("algo.critic_warmup_iterations", algo.get("critic_warmup_iterations", 0), 0)
+    for name in NON_NEGATIVE_INTS:
+        check_int(f"algo.{name}", algo[name], 0)
     for name in POSITIVE_NUMBERS:
         if not is_number(algo[name]) or not algo[name] > 0:
             refuse(f"algo.{name}", algo[name], "a number > 0")
@@ -110,6 +115,7 @@ def check_keys(cfg: dict) -> None:
 def check_run(cfg: dict) -> dict:
     """Every group a training run builds from, checked; returns `envs` with `num_workers: auto` resolved."""
     check_keys(cfg)
+    refuse_non_finite(cfg)
     check_flag("freeze_critic", cfg["freeze_critic"])
     check_flag("logger.wandb", cfg["logger"]["wandb"])
     if not isinstance(cfg["init_exclude"], list):
@@ -121,8 +127,8 @@ def check_run(cfg: dict) -> dict:
         if cfg[key] and not resolve_checkpoint(cfg[key]).is_file():
             raise FileNotFoundError(f"{key}={cfg[key]!r}: no such checkpoint file")
     seed = cfg["seed"]
-    if seed is not None and (not is_int(seed) or seed < 0):
-        refuse("seed", seed, "an integer >= 0 or null")
+    if seed is not None and (not is_int(seed) or not 0 <= seed <= MAX_SEED):
+        refuse("seed", seed, f"an integer in [0, {MAX_SEED}] or null")
     check_flag("trainer.deterministic", cfg["trainer"]["deterministic"])
     envs = dict(cfg["envs"])
     envs["num_workers"] = resolve_groups(envs["num_envs"], envs["num_workers"], prefix="envs.")

@@ -7,7 +7,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from vitac.utils.checks import check_flag, refuse
+from vitac.utils.checks import check_flag, refuse, refuse_non_finite
 
 
 @dataclass(frozen=True)
@@ -128,6 +128,7 @@ class GraspTaskConfig:
 
     def validate(self) -> None:
         key = self.TASK_KEY
+        refuse_non_finite(asdict(self), key)
         for name in ("physics_substeps", "episode_steps", "taxel_rows", "taxel_cols", "camera_size"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:

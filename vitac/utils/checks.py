@@ -23,6 +23,19 @@ def is_number(value) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)
 
 
+def refuse_non_finite(values, key: str = "") -> None:
+    """Refuse any NaN or infinite number anywhere in a nested config (dicts and lists), naming its key: no setting
+    of this project gives infinity a meaning, and one NaN trains to the end or diverges the physics mid-run."""
+    if isinstance(values, dict):
+        for name, value in values.items():
+            refuse_non_finite(value, f"{key}.{name}" if key else str(name))
+    elif isinstance(values, (list, tuple)):
+        for i, value in enumerate(values):
+            refuse_non_finite(value, f"{key}[{i}]")
+    elif isinstance(values, numbers.Real) and not isinstance(values, bool) and not math.isfinite(values):
+        refuse(key, values, "a finite number")
+
+
 def check_int(key: str, value, minimum: int) -> None:
     if not is_int(value) or value < minimum:
         refuse(key, value, "a positive integer" if minimum == 1 else f"an integer >= {minimum}")
