@@ -86,6 +86,20 @@ def test_killed_run_resumes_to_the_same_metrics(tmp_path):
     assert [float(x) for x in split_losses] == pytest.approx([float(x) for x in full_losses], rel=1e-4, abs=1e-9)
 
 
+def test_a_run_resumed_in_place_again_and_again_keeps_one_best_and_one_last_checkpoint(tmp_path, monkeypatch):
+    evaluations = iter(range(1, 100))  # every evaluation better than the last: each writes best.ckpt anew
+    monkeypatch.setattr("vitac.algos.callbacks.run_episodes",
+                        lambda *a, **k: dict(success_rate=next(evaluations) / 100, steps_to_success_mean=None))
+    checkpoints = tmp_path / "run" / "checkpoints"
+    train(compose_config(SMOKE + ["trainer.iterations=1", "resume=auto"], output_dir=tmp_path / "run"))
+    (checkpoints / "last.ckpt").unlink()  # killed after its best and periodic checkpoints, before last.ckpt
+    for iterations in (2, 3, 4):  # then killed after 2, after 3, and finished: `resume=auto` continues in place
+        train(compose_config(SMOKE + [f"trainer.iterations={iterations}", "resume=auto"], output_dir=tmp_path / "run"))
+    names = sorted(p.name for p in checkpoints.glob("*.ckpt"))
+    assert names == ["best.ckpt", "iter_00001.ckpt", "iter_00002.ckpt", "iter_00003.ckpt", "iter_00004.ckpt",
+                     "last.ckpt"]
+
+
 def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continues_from_it(tmp_path):
     # No periodic checkpoints: last.ckpt can only come from the SIGTERM. 4 envs in 2 groups: one worker process,
     # which gets the SIGTERM too (as from SLURM or `kill -- -PGID`).

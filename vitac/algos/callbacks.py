@@ -185,7 +185,8 @@ def run_callbacks(checkpoint: ModelCheckpoint, evaluation: EvaluationCallback, c
     """A training run's callbacks, in the order they run at an iteration's end: the periodic checkpoint, the
     best-evaluation checkpoint, the evaluation, the resume point, the progress bar and the non-finite guard."""
     return [checkpoint,
+            # One best.ckpt however often the run resumed: a resumed attempt replaces it instead of adding best-v1.
             BestEvaluation(dirpath=checkpoints, filename="best", monitor="eval/success_rate", mode="max",
-                           save_top_k=1, auto_insert_metric_name=False),
+                           save_top_k=1, auto_insert_metric_name=False, enable_version_counter=False),
             evaluation, LastCheckpoint(checkpoints / "last.ckpt"), IterationProgressBar(),
             NonFiniteGuard(checkpoints / "last.ckpt", max_nonfinite_iterations)]
