@@ -253,3 +253,23 @@ def test_an_aggregated_dataset_resumes_exactly(tmp_path):
     checkpoints = tmp_path / "full" / "checkpoints"
     assert load_checkpoint(checkpoints / "last.ckpt")["vitac"]["dataset"]["filled"] == 2
     assert "dataset" not in load_checkpoint(checkpoints / "iter_00003.ckpt")["vitac"]
+
+
+def test_the_progress_bar_never_shows_the_teachers_success_under_the_students_name():
+    from types import SimpleNamespace
+
+    from vitac.algos.callbacks import IterationProgressBar
+
+    bar = IterationProgressBar()
+    trainer = SimpleNamespace(max_epochs=3, current_epoch=0, callback_metrics={})
+    module = SimpleNamespace(env_steps=1024)
+    bar.on_train_start(trainer, module)
+    trainer.callback_metrics = {"charts/SPS": 40.0, "charts/success_rate": 0.88, "charts/beta": 0.9}
+    bar.on_train_epoch_end(trainer, module)
+    assert "teacher_acts=90%" in str(bar.bar) and "success_with_teacher=0.88" in str(bar.bar)
+    assert "success=" not in str(bar.bar).replace("success_with_teacher=", "")
+    trainer.callback_metrics = {"charts/SPS": 40.0, "charts/success_rate": 0.5, "charts/beta": 0.0,
+                                "eval/success_rate": 0.25}
+    bar.on_train_epoch_end(trainer, module)
+    assert "success=0.50" in str(bar.bar) and "eval=0.25" in str(bar.bar) and "teacher" not in str(bar.bar)
+    bar.on_train_end(trainer, module)

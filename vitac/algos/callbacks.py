@@ -158,7 +158,9 @@ class NonFiniteGuard(L.Callback):
 
 
 class IterationProgressBar(L.Callback):
-    """One bar over all iterations showing env steps/s, success rate and ETA."""
+    """One bar over all iterations showing env steps/s, success rate and ETA. While DAgger's teacher still acts
+    (beta > 0) the training episodes' success is shown as `success_with_teacher` beside the teacher's share of
+    actions; `eval` is always the policy alone on held-out episodes."""
 
     def on_train_start(self, trainer, module):
         self.bar = tqdm(total=trainer.max_epochs, initial=trainer.current_epoch, desc=type(module).__name__, unit="it",
@@ -166,9 +168,14 @@ class IterationProgressBar(L.Callback):
 
     def on_train_epoch_end(self, trainer, module):
         m = trainer.callback_metrics
-        postfix = {"env_steps": int(module.env_steps), "SPS": f"{float(m.get('charts/SPS', 0)):.0f}",
-                   "success": f"{float(m.get('charts/success_rate', float('nan'))):.2f}"}
-        if "eval/success_rate" in m:
+        postfix = {"env_steps": int(module.env_steps), "SPS": f"{float(m.get('charts/SPS', 0)):.0f}"}
+        success = f"{float(m.get('charts/success_rate', float('nan'))):.2f}"
+        beta = float(m.get("charts/beta", 0.0))
+        if beta > 0:  # DAgger's hand-over: the training episodes' success is partly the teacher's
+            postfix.update(teacher_acts=f"{beta:.0%}", success_with_teacher=success)
+        else:
+            postfix["success"] = success
+        if "eval/success_rate" in m:  # held-out episodes, the policy alone
             postfix["eval"] = f"{float(m['eval/success_rate']):.2f}"
         self.bar.set_postfix(postfix)
         self.bar.update(1)

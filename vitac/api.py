@@ -1,0 +1,96 @@
+"""The short Python path: an environment and a shipped or trained policy in a few lines, and gymnasium ids.
+
+    from vitac import load_policy, make_env
+
+    policy = load_policy("cmt_sym_dagger")   # pretrained/cmt_sym_dagger.pt, or any checkpoint's path
+    env = make_env(policy=policy)            # the task and observations it was trained with
+    obs, info = env.reset(seed=2_000_000)
+    policy.reset()
+    done = False
+    while not done:
+        obs, reward, terminated, truncated, info = env.step(policy.act(obs))
+        done = terminated or truncated
+    print(info["outcome"])
+
+`gymnasium.make("vitac/PegInsertion-v0")` and `gymnasium.make("vitac/NutScrew-v0")` build the same environments
+(registered on `import vitac`), with the same keyword arguments as `make_env`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vitac.utils.checks import refuse
+
+TASKS = {"insertion": "vitac.tasks.insertion.config.InsertionConfig", "screw": "vitac.tasks.screw.config.ScrewConfig"}
+GYM_IDS = {"vitac/PegInsertion-v0": "insertion", "vitac/NutScrew-v0": "screw"}
+
+
+class Policy:
+    """A trained policy acting on one environment's observations: the deterministic (mean) action, carrying its
+    recurrent state from step to step; `reset()` starts a new episode.
+
+    Attributes:
+        settings: the task settings it was trained with (what `make_env(policy=...)` builds).
+        observations: the observations it reads (its own and, with a critic, the critic's).
+    """
+
+    def __init__(self, path: str):
+        from vitac.run_config import load_policy as load_checkpoint_policy
+
+        self.network, self.config, self.settings = load_checkpoint_policy(path)
+        self.network.eval()
+        self.observations = list(self.network.input_keys)
+        self.reset()
+
+    def reset(self) -> None:
+        from vitac.viz import policy_actor
+
+        self._act = policy_actor(self.network)
+
+    def act(self, obs: dict) -> np.ndarray:
+        """The action (6,) in [-1, 1] for one step's observation dict."""
+        return np.clip(self._act(obs), -1.0, 1.0)
+
+
+def load_policy(name: str) -> Policy:
+    """A shipped policy by name (`"privileged"`, `"cmt_sym_dagger"`: `pretrained/<name>.pt`), or any checkpoint's
+    path (`outputs/.../checkpoints/last.ckpt`)."""
+    from vitac.utils.checkpoint import resolve_checkpoint
+
+    path = name if "/" in str(name) or str(name).endswith((".pt", ".ckpt")) else f"pretrained/{name}"
+    if not resolve_checkpoint(path).is_file():
+        refuse("name", name, "a shipped policy's name (pretrained/<name>.pt) or a checkpoint file")
+    return Policy(path)
+
+
+def make_env(task: str = "insertion", observations: list | None = None, seed: int | None = None,
+             policy: Policy | None = None, render_mode: str | None = None, **task_settings):
+    """A gymnasium environment of `task` (`insertion` or `screw`) with `observations` (default: every one the task
+    declares) and any task setting as a keyword (`peg_size=8`, `randomization={"scale": 0.5}`); or, with
+    `policy`, the environment that policy was trained with (its task, settings and observations). `render()`
+    gives the wrist camera's image (`render_mode="rgb_array"`, the only mode)."""
+    from vitac.envs.gym_env import TaskEnv
+
+    if render_mode not in (None, "rgb_array"):
+        refuse("render_mode", render_mode, "None or 'rgb_array'")
+    if policy is not None:
+        settings = dict(policy.settings, observations=policy.observations, **task_settings)
+    elif task not in TASKS:
+        refuse("task", task, f"one of {list(TASKS)}")
+    else:
+        settings = dict(task_settings, _target_=TASKS[task])
+        if observations is not None:
+            settings["observations"] = list(observations)
+    env = TaskEnv(settings, seed=seed)
+    env.render_mode = render_mode
+    return env
+
+
+def register_gym_ids() -> None:
+    """gymnasium ids for the tasks (`gymnasium.make("vitac/PegInsertion-v0", observations=[...])`)."""
+    import gymnasium
+
+    for gym_id, task in GYM_IDS.items():
+        if gym_id not in gymnasium.registry:
+            gymnasium.register(gym_id, entry_point="vitac.api:make_env", kwargs=dict(task=task))
