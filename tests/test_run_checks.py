@@ -207,3 +207,42 @@ def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_an
     monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(error, match=pattern):
         train(compose_config(SMOKE + [override], output_dir=tmp_path / "x"))
+
+
+@pytest.mark.parametrize("command,message", [
+    (["vitac.train", "reg.lambda_sym=-1"], "error: reg.lambda_sym=-1 is not allowed: expected a number >= 0"),
+    (["vitac.train", "task=screw", "obs=privileged"], "error: fusion=cmt is not allowed with obs=privileged"),
+    (["vitac.train", "algo.lr=nan"], "error: algo.lr=nan is not allowed: expected a finite number"),
+    (["vitac.train", "+foo=1"], "error: foo=1 is not allowed: expected one of"),
+    (["vitac.train", "init_ckpt=/no/such.ckpt"], "error: init_ckpt='/no/such.ckpt': no such checkpoint file"),
+    (["vitac.evaluate", "policy=foo"], "error: policy='foo' is not allowed: expected one of ['ckpt', 'oracle', 'random']"),
+    (["vitac.evaluate", "ckpt=pretrained/privileged", "episodes=0"], "error: episodes=0 is not allowed"),
+])
+def test_a_refused_value_prints_one_line_and_exits_2(command, message):
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", *command], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.strip().splitlines() == [result.stderr.strip()] and result.stderr.startswith(message)
+    assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_a_crash_keeps_its_stack_and_full_error_shows_a_refusals(monkeypatch, capsys):
+    from vitac.utils.checks import refuse
+    from vitac.utils.cli import refusals_in_one_line
+
+    def crash():
+        raise ValueError("shapes (3,) and (4,) not aligned")  # no key=value: a bug, not a refusal
+
+    def refusal():
+        refuse("algo.lr", -1, "a number > 0")
+
+    with pytest.raises(ValueError, match="not aligned"):
+        refusals_in_one_line(crash)()
+    with pytest.raises(SystemExit) as stopped:
+        refusals_in_one_line(refusal)()
+    assert stopped.value.code == 2 and capsys.readouterr().err == "error: algo.lr=-1 is not allowed: expected a number > 0\n"
+    monkeypatch.setenv("HYDRA_FULL_ERROR", "1")
+    with pytest.raises(ValueError, match="algo.lr=-1"):
+        refusals_in_one_line(refusal)()

@@ -25,6 +25,7 @@ from vitac.envs.vector_env import TaskVectorEnv
 from vitac.run_config import load_policy
 from vitac.tasks import make_task_config
 from vitac.utils.checks import check_flag, check_int, is_int, refuse, refuse_non_finite, resolve_groups
+from vitac.utils.cli import refusals_in_one_line
 from vitac.utils.quiet import quiet_third_party
 from vitac.utils.records import write_json
 
@@ -135,6 +136,7 @@ PER_EPISODE = ("steps_to_success", "final_keypoint_distance_mm", "final_state", 
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
+@refusals_in_one_line
 def main(cfg: DictConfig) -> None:
     quiet_third_party()
     if cfg.policy != "ckpt":

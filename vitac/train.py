@@ -20,6 +20,7 @@ from vitac.run_config import build_policy_from_config, check_modalities, load_te
 from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics, report_run, write_teacher_record
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
+from vitac.utils.cli import refusals_in_one_line
 from vitac.utils.instantiate import instantiate
 from vitac.utils.quiet import OfflineWandbLogger, quiet_third_party
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
@@ -47,7 +48,7 @@ def train(cfg: DictConfig) -> dict:
                         metrics_csv=str(out / "csv" / "metrics.csv"), wandb=None, preset=cfg.preset.name)
     check_output_dir(out)
     if cfg.seed is not None:  # before any weights are initialised
-        L.seed_everything(cfg.seed, workers=True)
+        L.seed_everything(cfg.seed, workers=True, verbose=False)
     policy = build_policy_from_config(cfg, task_config)
     log.info("policy: %s fusion, %d parameters", type(policy.fusion).__name__ if policy.fusion else "no",
              sum(p.numel() for p in policy.parameters()))
@@ -104,6 +105,7 @@ def train(cfg: DictConfig) -> dict:
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="config")
+@refusals_in_one_line
 def main(cfg: DictConfig) -> float:
     quiet_third_party()
     return train(cfg)["metrics"].get("eval/success_rate", float("nan"))

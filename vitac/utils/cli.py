@@ -6,7 +6,11 @@ that closes early."""
 from __future__ import annotations
 
 import argparse
+import functools
+import os
+import re
 import signal
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -78,3 +82,25 @@ def refuse_bad_files(prog: str):
         yield
     except (OSError, ValueError) as err:
         raise SystemExit(f"{prog}: {err}") from err
+
+
+# A refusal names what it refuses first: `key=value ...` (vitac.utils.checks.refuse and every check of a run's values).
+REFUSAL = re.compile(r"^[+\w.\[\]/-]+=")
+
+
+def refusals_in_one_line(main):
+    """An entry point whose refusals of a value print `error: <key>=<value> ...: <what is allowed>` on one line and
+    exit with status 2, without the stack; any other error (a crash) keeps its stack, and HYDRA_FULL_ERROR=1
+    shows the stack of a refusal too."""
+
+    @functools.wraps(main)
+    def run(*args, **kwargs):
+        try:
+            return main(*args, **kwargs)
+        except (ValueError, FileNotFoundError) as err:
+            if os.environ.get("HYDRA_FULL_ERROR") == "1" or not REFUSAL.match(str(err)):
+                raise
+            print(f"error: {err}", file=sys.stderr, flush=True)
+            sys.exit(2)
+
+    return run
