@@ -4,6 +4,7 @@ ignore, missing or corrupt checkpoints, resumes that cannot continue exactly, th
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 import torch
@@ -166,6 +167,24 @@ def test_resume_that_cannot_continue_exactly_is_refused_before_any_environment_i
                                          r".*set differently from the checkpoint's: \['obs'\]"):
         train(compose_config(["preset=smoke", "experiment=table1/privileged_contact", f"resume={tmp_path / 'run'}"],
                              output_dir=tmp_path / "b"))
+
+
+def test_a_warm_start_or_critic_checkpoint_that_does_not_fit_is_refused_before_any_environment_is_built(
+        tmp_path, monkeypatch):
+    torn = tmp_path / "torn.ckpt"
+    torn.write_bytes(Path("pretrained/privileged.pt").read_bytes()[:5000])
+    student = ["preset=smoke", "experiment=table1/tactile"]
+    monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("environments built"))
+    for overrides, pattern in (
+            ([f"init_ckpt={torn}"], r"init_ckpt='.*torn\.ckpt' is not a readable vitac checkpoint"),
+            (["init_ckpt=pretrained/privileged"], r"init_ckpt='pretrained/privileged' does not fit this policy"),
+            ([f"critic_ckpt={torn}"], r"critic_ckpt='.*torn\.ckpt' is not a readable vitac checkpoint"),
+            (["critic_ckpt=pretrained/privileged", "critic.units=[64,64]"],
+             r"critic_ckpt='pretrained/privileged' does not fit this critic"),
+            (["critic_ckpt=pretrained/privileged", "critic=none"], r"critic_ckpt='pretrained/privileged' needs an "
+                                                                    r"asymmetric critic")):
+        with pytest.raises(ValueError, match=pattern):
+            train(compose_config(student + overrides, output_dir=tmp_path / "x"))
 
 
 def test_every_algo_key_has_its_check():

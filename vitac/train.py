@@ -12,13 +12,14 @@ from lightning.pytorch.loggers import CSVLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vitac.algos.callbacks import run_callbacks
+from vitac.algos.ppo import PPO
 from vitac.algos.run_checks import check_accelerator, check_run, resolve_trainer_threads
-from vitac.algos.weights import check_resume, load_critic, load_weights
+from vitac.algos.weights import WarmStart, check_resume, load_critic, load_weights
 from vitac.envs.gym_env import TaskEnv
 from vitac.models.encoders import ConvSoftArgmaxEncoder
 from vitac.run_config import build_policy_from_config, check_modalities, load_teacher, task_settings
 from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics, report_run, write_teacher_record
-from vitac.tasks import make_task_config
+from vitac.tasks import import_object, make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.cli import refusals_in_one_line
 from vitac.utils.instantiate import instantiate
@@ -54,6 +55,13 @@ def train(cfg: DictConfig) -> dict:
              sum(p.numel() for p in policy.parameters()))
     ckpt_path = check_resume(resume, policy, envs_cfg["num_envs"], resolved) if resume else None
     teacher = load_teacher(cfg, settings)  # {} unless the algorithm distills
+    # Warm-start weights load now, before any environment worker starts, so a checkpoint that does not fit is
+    # refused at once; the algorithm receives the loaded policy (and return statistics) once it is built.
+    warm = WarmStart(policy, value_normalizer=issubclass(import_object(cfg.algo._target_), PPO))
+    if cfg.init_ckpt:
+        load_weights(warm, cfg.init_ckpt, list(cfg.init_exclude))
+    if cfg.critic_ckpt:
+        load_critic(warm, cfg.critic_ckpt)
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
     if teacher:
         write_teacher_record(out, cfg.teacher_ckpt)
@@ -89,10 +97,7 @@ def train(cfg: DictConfig) -> dict:
                                        rollout_threads=rollout_threads, update_threads=update_threads,
                                        run_config=resolved,
                                        curriculum=instantiate(cfg.curriculum) if cfg.curriculum._target_ else None)
-        if cfg.init_ckpt:
-            load_weights(module, cfg.init_ckpt, list(cfg.init_exclude))
-        if cfg.critic_ckpt:
-            load_critic(module, cfg.critic_ckpt)
+        warm.into(module)
         if cfg.freeze_critic and policy.critic is not None:  # AACD with a fixed pre-trained critic
             policy.critic.requires_grad_(False)
         # PortableCheckpointIO reads weights-only whatever this flag says (numpy states admitted, code never);

@@ -12,6 +12,25 @@ from vitac.utils.checkpoint import load_checkpoint, state_mismatch
 
 log = logging.getLogger(__name__)
 
+class WarmStart(torch.nn.Module):
+    """What `init_ckpt` and `critic_ckpt` load into before any environment exists, so that a checkpoint that does
+    not fit is refused before workers start: the run's policy itself (loaded in place, later handed to the
+    algorithm) and, for an algorithm with one (PPO's), a return normalizer handed over by `into`."""
+
+    def __init__(self, policy, value_normalizer: bool):
+        super().__init__()
+        from vitac.models.normalizer import RunningNormalizer
+
+        self.policy = policy
+        if value_normalizer:
+            self.value_normalizer = RunningNormalizer((), clip=float("inf"))
+
+    def into(self, module) -> None:
+        """Give the algorithm module the return statistics the checkpoints held (its policy is already ours)."""
+        if hasattr(self, "value_normalizer"):
+            module.value_normalizer.load_state_dict(self.value_normalizer.state_dict())
+
+
 POLICY_GROUPS = ("obs", "encoder", "fusion", "head", "reg", "critic", "residual")
 
 
