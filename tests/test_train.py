@@ -100,6 +100,34 @@ def test_a_run_resumed_in_place_again_and_again_keeps_one_best_and_one_last_chec
                      "last.ckpt"]
 
 
+@pytest.mark.parametrize("written", [0, 1, 2])
+def test_a_kill_after_the_checkpoint_but_before_the_metrics_row_leaves_no_hole_in_the_metrics(tmp_path, monkeypatch,
+                                                                                             written):
+    """last.ckpt is written at an iteration's end before Lightning's logger writes that iteration's row: killed
+    in between (here: the logger writes `written` rows, then nothing more), the resumed run still logs every
+    iteration the checkpoint held exactly once."""
+    from lightning.pytorch.loggers import csv_logs
+
+    from vitac.run_dirs import read_metrics
+
+    real_save, calls = csv_logs.ExperimentWriter.save, []
+
+    def save_until_killed(self):
+        calls.append(1)
+        if len(calls) > written:
+            raise RuntimeError("killed")  # nothing reaches the file from here on
+        real_save(self)
+
+    job = SMOKE + ["eval.video_every=0", "resume=auto", "logger=csv"]
+    monkeypatch.setattr(csv_logs.ExperimentWriter, "save", save_until_killed)
+    with pytest.raises(RuntimeError, match="killed"):
+        train(compose_config(job + ["trainer.iterations=4"], output_dir=tmp_path / "run"))
+    monkeypatch.setattr(csv_logs.ExperimentWriter, "save", real_save)
+    train(compose_config(job + ["trainer.iterations=4"], output_dir=tmp_path / "run"))
+    epochs = [r["epoch"] for r in read_metrics(tmp_path / "run") if r.get("losses/loss")]
+    assert epochs == ["0", "1", "2", "3"]
+
+
 def test_sigterm_to_the_whole_job_saves_the_current_iteration_and_resume_continues_from_it(tmp_path):
     # No periodic checkpoints: last.ckpt can only come from the SIGTERM. 4 envs in 2 groups: one worker process,
     # which gets the SIGTERM too (as from SLURM or `kill -- -PGID`).

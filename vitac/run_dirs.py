@@ -73,6 +73,22 @@ def keep_metrics(out: Path) -> None:
         current.rename(current.parent / f"{PART_PREFIX}{len(parts):03d}.csv")
 
 
+def recover_metrics_row(out: Path, resumed: Path, checkpoint: Path) -> None:
+    """A run killed after `last.ckpt` recorded an iteration but before the logger wrote that iteration's row: the
+    row, which the checkpoint carries, is written to `out` as a part of its own, so the resumed run's metrics have
+    no hole (`read_metrics` reads it in order; an iteration logged twice counts once)."""
+    row = load_checkpoint(checkpoint, key="resume")["vitac"].get("metrics_row")
+    if row is None or any(r.get("epoch") == str(row["epoch"]) for r in read_metrics(resumed)):
+        return
+    folder = Path(out) / "csv"
+    folder.mkdir(parents=True, exist_ok=True)
+    parts = sorted(folder.glob(f"{PART_PREFIX}*.csv"))
+    with open(folder / f"{PART_PREFIX}{len(parts):03d}.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=sorted(row))
+        writer.writeheader()
+        writer.writerow(row)
+
+
 def read_metrics(run: Path, hint: str = "") -> list[dict]:
     """Every logged row of a run over its attempts, in order: an iteration an interrupted attempt logged and the
     next attempt repeated (the checkpoint was older than the log) counts once, from the later attempt."""

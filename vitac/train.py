@@ -18,7 +18,14 @@ from vitac.algos.weights import WarmStart, check_resume, load_critic, load_weigh
 from vitac.envs.gym_env import TaskEnv
 from vitac.models.encoders import ConvSoftArgmaxEncoder
 from vitac.run_config import build_policy_from_config, check_modalities, load_teacher, task_settings
-from vitac.run_dirs import auto_resume, check_output_dir, keep_metrics, report_run, write_teacher_record
+from vitac.run_dirs import (
+    auto_resume,
+    check_output_dir,
+    keep_metrics,
+    recover_metrics_row,
+    report_run,
+    write_teacher_record,
+)
 from vitac.tasks import import_object, make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
 from vitac.utils.cli import refusals_in_one_line
@@ -67,6 +74,8 @@ def train(cfg: DictConfig) -> dict:
         write_teacher_record(out, cfg.teacher_ckpt)
     if ckpt_path is not None and Path(resume).resolve() == out.resolve():
         keep_metrics(out)  # resumed in place: Lightning's CSV logger would delete the earlier attempt's metrics
+    if ckpt_path is not None:
+        recover_metrics_row(out, Path(resume), ckpt_path)
     video_settings = dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS)))
     make_envs, num_envs = instantiate(OmegaConf.create(envs_cfg)), envs_cfg["num_envs"]
     evaluation = instantiate(cfg.eval, make_envs=lambda: make_envs(settings, num_envs=min(num_envs, cfg.eval.episodes),

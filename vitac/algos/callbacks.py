@@ -184,7 +184,8 @@ class IterationProgressBar(L.Callback):
         self.bar.close()
 
     def on_exception(self, trainer, module, exception):
-        self.bar.close()
+        if hasattr(self, "bar"):  # an error before training started has no bar to close
+            self.bar.close()
 
 
 def run_callbacks(checkpoint: ModelCheckpoint, evaluation: EvaluationCallback, checkpoints: Path,

@@ -135,6 +135,9 @@ class RolloutAlgorithm(L.LightningModule):
                                    env_steps=self.env_steps, generator=self.generator.get_state(),
                                    curriculum=self.curriculum.state_dict() if self.curriculum else None,
                                    **self.extra_state(), **(self.resume_state() if self.saving_resume_point else {}))
+        if self.saving_resume_point:  # this iteration's metrics row: a kill before the logger writes it loses nothing
+            metrics = {k: float(v) for k, v in self.trainer.callback_metrics.items()}
+            checkpoint["vitac"]["metrics_row"] = dict(metrics, epoch=self.current_epoch, step=self.current_epoch)
 
     def on_load_checkpoint(self, checkpoint):
         self._restored = checkpoint.get("vitac")
