@@ -236,6 +236,8 @@ def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_an
     (["vitac.train", "init_ckpt=/no/such.ckpt"], "error: init_ckpt='/no/such.ckpt': no such checkpoint file"),
     (["vitac.evaluate", "policy=foo"], "error: policy='foo' is not allowed: expected one of ['ckpt', 'oracle', 'random']"),
     (["vitac.evaluate", "ckpt=pretrained/privileged", "episodes=0"], "error: episodes=0 is not allowed"),
+    (["vitac.evaluate", "policy=oracle", "+oracle_options.foo=1"],
+     "error: oracle_options.foo=1 is not allowed: expected one of ['align_tolerance', 'hover', 'observed_socket'"),
 ])
 def test_a_refused_value_prints_one_line_and_exits_2(command, message):
     import subprocess

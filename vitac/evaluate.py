@@ -107,6 +107,14 @@ def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out
     check_int("episodes", episodes, 1)
     check_seed(seed, episodes)
     task_config = make_task_config(settings)
+    if policy == "oracle":  # an option the oracle does not take is refused before anything is built
+        from vitac.algos.run_checks import accepted_keywords
+        from vitac.tasks import import_object
+
+        accepted = sorted(accepted_keywords(import_object(task_config.ORACLE)) - {"task"})
+        for name, value in (oracle_options or {}).items():
+            if name not in accepted:
+                refuse(f"oracle_options.{name}", value, f"one of {accepted} (the options of {task_config.ORACLE})")
     # One cheap observation: a scripted controller reads the physics, not the observations.
     task_config.observations = [next(k for k, s in task_config.observation_specs().items() if s.kind == "vector")]
     env = TaskEnv(task_config, seed=seed)
