@@ -327,6 +327,17 @@ def test_critic_from_a_privileged_run(tmp_path):
     assert critic_keys and all(torch.equal(a[k], b[k]) for k in critic_keys)  # loaded and kept frozen
 
 
+def test_a_sweep_with_one_bad_cell_trains_nothing_and_names_the_cell(tmp_path):
+    """Every job of a multirun is checked before the first starts (hydra_plugins/vitac_sweeper): seed 0 is not
+    trained hours before seed -1's typo stops the sweep."""
+    cmd = [sys.executable, "-m", "vitac.train", "-m", "preset=smoke", "seed=0,-1", "+experiment/table1=tactile,wrist",
+           f"hydra.sweep.dir={tmp_path}/sweep"]
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and not (tmp_path / "sweep").exists()
+    assert result.stderr.strip() == ("error: job 2 of 4 (preset=smoke seed=-1 +experiment/table1=tactile): seed=-1 is "
+                                     "not allowed: expected an integer in [0, 2147483647] or null; no job was started")
+
+
 @pytest.mark.slow
 def test_multirun_over_seeds_and_every_experiment(tmp_path):
     cmd = [sys.executable, "-m", "vitac.train", "-m", "preset=smoke", "seed=0,1",

@@ -36,13 +36,26 @@ from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
 log = logging.getLogger(__name__)
 
 
-def train(cfg: DictConfig) -> dict:
-    """Check, seed, build task, policy, environments and algorithm, fit; returns the last metrics and paths."""
+def check_job(cfg: DictConfig, with_policy: bool = True) -> tuple[dict, dict, dict, object]:
+    """Every value of a run that can be checked without simulating: the run's groups, the task, the modalities and,
+    `with_policy`, the policy's model values (by building one). A multirun checks each of its jobs so before the
+    first starts (hydra_plugins/vitac_sweeper). Returns the resolved config, the checked `envs` group, the task's
+    settings and its config."""
     resolved = OmegaConf.to_container(cfg, resolve=True)
-    envs_cfg = check_run(resolved)  # everything that can be checked without simulating is checked first
+    envs_cfg = check_run(resolved)
     settings = task_settings(cfg)
     check_modalities(cfg, settings)
     task_config = make_task_config(settings)
+    if with_policy:
+        build_policy_from_config(cfg, task_config)
+    return resolved, envs_cfg, settings, task_config
+
+
+def train(cfg: DictConfig) -> dict:
+    """Check, seed, build task, policy, environments and algorithm, fit; returns the last metrics and paths."""
+    # Everything that can be checked without simulating is checked first; the policy, built after seeding,
+    # refuses its own values.
+    resolved, envs_cfg, settings, task_config = check_job(cfg, with_policy=False)
     accelerator = check_accelerator(cfg.trainer.accelerator)
     rollout_threads, update_threads = resolve_trainer_threads(cfg.trainer.rollout_threads, cfg.trainer.update_threads,
                                                               cfg.trainer.deterministic)
