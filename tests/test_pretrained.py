@@ -22,6 +22,15 @@ def test_the_shipped_teacher_is_the_privileged_policy():
     assert load_checkpoint("pretrained/privileged_18M")["env_steps"] == 18_513_920  # iteration 2,260
 
 
+def test_the_contact_force_teacher_is_the_archived_run_and_reads_the_contact_forces():
+    policy, config, _ = load_policy("pretrained/privileged_contact", key="teacher_ckpt")
+    assert set(policy.input_keys) == {"proprio", "peg_state", "contact_forces", "critic_state"}
+    assert load_checkpoint("pretrained/privileged_contact")["env_steps"] == 5_341_184  # 652 iterations of 32 x 256
+    archived = json.loads(Path("docs/data/results/teacher_contact/checkpoints/last.eval.json").read_text())
+    assert archived["episodes"] == 400 and round(archived["success_rate"] * 400) == 383
+    assert config.seed == 2 and config.init_ckpt == "pretrained/privileged_seed2"
+
+
 def test_the_shipped_student_is_the_distilled_wrist_tactile_cmt_sym_policy():
     policy, _, settings = load_policy("pretrained/cmt_sym_dagger")
     config = load_checkpoint("pretrained/cmt_sym_dagger")["vitac_config"]

@@ -140,7 +140,7 @@ def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out
 
 
 # The report's per-episode lists: in the file, not on the console.
-PER_EPISODE = ("steps_to_success", "final_keypoint_distance_mm", "final_state", "episode_factors")
+PER_EPISODE = ("steps_to_success", "final_keypoint_distance_mm", "final_state", "episode_factors", "episode_success")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
