@@ -160,8 +160,8 @@ class TaskEnv(gym.Env):
         return self._env.task.observe(self._env.physics)
 
     def close(self):
-        if self._env is None:  # closed already: gymnasium lets close() be called again
+        if getattr(self, "_closed", False):  # closed already: gymnasium lets close() be called again
             return
         self._env.task.close()
         self._env.close()
-        self._env = None
+        self._closed = True
