@@ -115,13 +115,12 @@ def load_critic(module, path: str) -> None:
     picked = {k: v for k, v in state.items() if k.startswith(prefixes)}
     if not picked:
         raise ValueError(f"critic_ckpt={path!r} holds no critic weights")
-    own = module.policy.critic.state_dict()
+    width = module.policy.critic.mlp[0].in_features
     saved = picked.get(CRITIC_INPUT)
-    if saved is not None and saved.shape[1] < own["mlp.0.weight"].shape[1] and module.policy.critic.reads_actor_memory:
+    if saved is not None and saved.shape[1] < width and module.policy.critic.reads_actor_memory:
         # A critic that reads the actor's memory, from one that did not: the memory enters with zero weights, so
         # the critic starts as the checkpoint's and learns to use it.
-        picked[CRITIC_INPUT] = torch.cat([saved, saved.new_zeros(saved.shape[0], own["mlp.0.weight"].shape[1]
-                                                                 - saved.shape[1])], dim=1)
+        picked[CRITIC_INPUT] = torch.cat([saved, saved.new_zeros(saved.shape[0], width - saved.shape[1])], dim=1)
     _, unexpected, shapes = state_mismatch(module.state_dict(), picked)
     if unexpected or shapes:
         raise ValueError(f"critic_ckpt={path!r} does not fit this critic: {(unexpected + shapes)[:5]} differ in name "
