@@ -175,6 +175,8 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
     (["-m", "vitac.runs", "log-std", "x.ckpt", "--episodes", "0"],
      "argument --episodes: 0 is not allowed: expected an integer >= 1"),
     (["benchmarks/bench_env.py", "--steps", "many"], "argument --steps: 'many' is not an integer"),
+    (["benchmarks/compare.py", "--base", "no-such-commit"],
+     "argument --base: 'no-such-commit' is not allowed: not a commit of this repository"),
     (["-m", "vitac.runs", "summary", "x.csv", "--window", "0"],
      "argument --window: 0.0 is not allowed: expected a number > 0"),
     (["benchmarks/bench_update.py", "--json", "README.md/bench.json"],
@@ -191,6 +193,20 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
 def test_tools_refuse_a_bad_argument_naming_the_flag_before_any_work(command, message):
     result = subprocess.run([sys.executable, *command], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and message in result.stderr and result.stdout == ""
+
+
+def test_compare_runs_the_benchmarks_of_a_base_commit_and_of_the_working_tree_and_removes_its_worktree(tmp_path):
+    out = tmp_path / "compare.json"
+    subprocess.run([sys.executable, "benchmarks/compare.py", "--base", "HEAD", "--steps", "20", "--passes", "2",
+                    "--rounds", "1", "--json", str(out)], cwd=ROOT, check=True, capture_output=True, timeout=600)
+    record = json.loads(out.read_text())
+    figures = record["figures"]
+    assert {"steps_per_s", "tactile_ms", "cmt_latency_ms", "naive_latency_b256_ms"} <= figures.keys()
+    for f in figures.values():
+        assert f["base"] > 0 and f["head"] > 0 and f["head_vs_base"] > 0
+    assert len(record["per_round"]["base"]) == len(record["per_round"]["head"]) == 1
+    worktrees = subprocess.run(["git", "worktree", "list"], cwd=ROOT, capture_output=True, text=True).stdout
+    assert "vitac-compare-" not in worktrees
 
 
 def test_bench_physics_refuses_a_missing_checkpoint_before_its_scripted_drivers_run(tmp_path):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -96,3 +99,29 @@ def test_a_new_part_is_a_shape_not_a_change_to_the_model_a_hexagonal_prism_press
     within = np.abs(x_world) < 0.0069 - 0.0005
     np.testing.assert_allclose(on_nut[2][within], on_box[2][within], atol=1e-9)
     assert on_nut[2][np.abs(x_world) > 0.0075].max() == 0.0
+
+
+# sha256 of the float64 fields of tests/data/tactile_states.npz's states, as 6428cf5's kernel computed them.
+FIELD_DIGESTS = {"insertion": "5be58bde8aeb282ce02a4c8d15eed3ccad92fee7c7b172a116da502e1af6b4e3",
+                 "screw": "025acde1af5cf1edc3c03c4acecbf3d9917991d09bdb45beecb2498d0cfd92f2"}
+
+
+@pytest.mark.parametrize("task", sorted(FIELD_DIGESTS))
+def test_fields_along_episodes_of_each_task_are_bit_identical_to_6428cf5s(task):
+    from vitac.sim.gripper import PAD_LENGTH, PAD_WIDTH
+    from vitac.sim.tactile import ContactShape
+    from vitac.tasks.insertion.config import InsertionConfig
+    from vitac.tasks.screw.config import ScrewConfig
+
+    states = np.load(Path(__file__).parents[1] / "data" / "tactile_states.npz")
+    c = {"insertion": InsertionConfig, "screw": ScrewConfig}[task]()
+    sensor = TactileFieldSensor(c.taxel_rows, c.taxel_cols, PAD_WIDTH, PAD_LENGTH, c.taxel_margin, c.tactile_kn,
+                                c.tactile_kt, c.tactile_mu)
+    length, radius = states[f"{task}_shape"]
+    shape = ContactShape(float(length), float(radius), tuple(map(tuple, states[f"{task}_normals"].tolist())),
+                         tuple(states[f"{task}_offsets"].tolist()))
+    inputs = [states[f"{task}_{k}"] for k in ("pad_pos", "pad_rot", "pad_lin", "pad_ang", "part_pos", "part_rot",
+                                               "part_lin", "part_ang")]
+    fields = np.stack([sensor.fields(shape, *step) for step in zip(*inputs, strict=True)])
+    assert np.count_nonzero(fields[:, :, 2]) > 0.05 * fields[:, :, 2].size  # the pads do touch the part
+    assert hashlib.sha256(fields.tobytes()).hexdigest() == FIELD_DIGESTS[task]

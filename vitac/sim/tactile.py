@@ -10,6 +10,7 @@ peg surface. The output per pad is a (3, rows, cols) map of (shear_x, shear_y, n
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -33,6 +34,23 @@ class ContactShape:
     @property
     def is_cylinder(self) -> bool:
         return not self.normals
+
+    @functools.cached_property
+    def face_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The side faces' normals (F, 2) and offsets (F,) as the force kernel reads them, built once."""
+        return (np.array(self.normals, dtype=np.float64).reshape(-1, 2), np.array(self.offsets, dtype=np.float64))
+
+    @functools.cached_property
+    def reach(self) -> float:
+        """Radius of the smallest cylinder about the axis that holds the part: the cylinder's radius, or the
+        prism's farthest corner (a hair more, so that rounding never drops a point inside it)."""
+        if self.is_cylinder:
+            return self.radius
+        n, d = self.face_arrays
+        corners = [np.linalg.solve(n[[i, j]], d[[i, j]]) for i in range(len(n)) for j in range(i)
+                   if abs(np.linalg.det(n[[i, j]])) > 1e-9]
+        inside = [c for c in corners if np.all(n @ c <= d + 1e-12)]
+        return float(max(np.linalg.norm(c) for c in inside)) * (1.0 + 1e-9)
 
 
 def cylinder(radius: float, length: float) -> ContactShape:
@@ -93,7 +111,7 @@ def _penetration(x, y, z, cylinder, radius, normals, offsets, length):
 
 @numba.njit(cache=True)
 def _fields(points, pad_pos, pad_rot, pad_lin, pad_ang, peg_pos, peg_rot, peg_lin, peg_ang,
-            cylinder, radius, normals, offsets, length, kn, kt, mu, out):
+            cylinder, radius, normals, offsets, length, reach2, kn, kt, mu, out):
     """Fill out (P, 3, N) with (shear_x, shear_y, normal) per taxel; see TactileFieldSensor.fields."""
     for p in range(pad_pos.shape[0]):
         rot = pad_rot[p]
@@ -110,7 +128,12 @@ def _fields(points, pad_pos, pad_rot, pad_lin, pad_ang, peg_pos, peg_rot, peg_li
             lx = peg_rot[0, 0] * wx + peg_rot[1, 0] * wy + peg_rot[2, 0] * wz
             ly = peg_rot[0, 1] * wx + peg_rot[1, 1] * wy + peg_rot[2, 1] * wz
             lz = peg_rot[0, 2] * wx + peg_rot[1, 2] * wy + peg_rot[2, 2] * wz
-            depth, nx_, ny_, nz_ = _penetration(lx, ly, lz, cylinder, radius, normals, offsets, length)
+            # Most taxels lie outside the part's bounding cylinder: no call for them. Calling for every taxel, with
+            # the face arrays as arguments, made the kernel 7x slower than this.
+            if lz <= 0.0 or lz >= length or lx * lx + ly * ly >= reach2:
+                depth, nx_, ny_, nz_ = 0.0, 0.0, 0.0, 0.0
+            else:
+                depth, nx_, ny_, nz_ = _penetration(lx, ly, lz, cylinder, radius, normals, offsets, length)
             if depth <= 0.0:
                 out[p, 0, n] = 0.0
                 out[p, 1, n] = 0.0
@@ -171,9 +194,8 @@ class TactileFieldSensor:
         """
         f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
         out = np.empty((len(pad_pos), 3, len(self.points)))
-        normals = np.array(peg.normals, dtype=np.float64).reshape(-1, 2)
+        normals, offsets = peg.face_arrays
         _fields(self.points, f64(pad_pos), f64(pad_rot), f64(pad_lin_vel), f64(pad_ang_vel), f64(peg_pos),
-                f64(peg_rot), f64(peg_lin_vel), f64(peg_ang_vel), peg.is_cylinder, float(peg.radius), normals,
-                np.array(peg.offsets, dtype=np.float64), float(peg.length), float(self.kn), float(self.kt),
-                float(self.mu), out)
+                f64(peg_rot), f64(peg_lin_vel), f64(peg_ang_vel), peg.is_cylinder, float(peg.radius), normals, offsets,
+                float(peg.length), peg.reach * peg.reach, float(self.kn), float(self.kt), float(self.mu), out)
         return out.reshape(len(pad_pos), 3, self.rows, self.cols)

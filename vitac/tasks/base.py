@@ -261,13 +261,16 @@ class GraspedPartTask(composer.Task):
         return self._per_state("tactile", physics, lambda: self._raw_tactiles(physics))
 
     def _raw_tactiles(self, physics) -> np.ndarray:
-        ids, d = self._ids, physics.data
+        # MuJoCo's own MjModel/MjData: dm_control's wrappers cost more than the force kernel here.
+        ids, m, d = self._ids, physics.model.ptr, physics.data.ptr
         sites, held = ids["pad_sites"], ids["held_body"]
-        velocities = [self._velocity(physics, mujoco.mjtObj.mjOBJ_SITE, site) for site in sites]
-        held_lin, held_ang = self._velocity(physics, mujoco.mjtObj.mjOBJ_BODY, held)
+        velocity = np.empty((len(sites) + 1, 6))  # (angular, linear) of each pad site, then of the held part
+        for row, site in enumerate(sites):
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_SITE, site, velocity[row], 0)
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, held, velocity[-1], 0)
         return self.tactile.fields(self.held_shape, d.site_xpos[sites], d.site_xmat[sites].reshape(-1, 3, 3),
-                                   np.array([v[0] for v in velocities]), np.array([v[1] for v in velocities]),
-                                   d.xpos[held], d.xmat[held].reshape(3, 3), held_lin, held_ang)
+                                   velocity[:-1, 3:], velocity[:-1, :3], d.xpos[held], d.xmat[held].reshape(3, 3),
+                                   velocity[-1, 3:], velocity[-1, :3])
 
     def raw_tactile(self, physics, side: int) -> np.ndarray:
         """Force field of one pad (0 left, 1 right) before the grasp reference is subtracted."""
