@@ -299,6 +299,13 @@ def test_paired_outcomes_compare_steps_to_succeed_on_the_episodes_both_inserted(
     assert lines[1] == f"steps to succeed on the 5 episodes both inserted: a 106.0, b 117.2, Wilcoxon signed-rank two-sided p = {p:.3f}"
     # a report without its steps per success (an older one) gives only the McNemar line
     assert paired(first, dict(second, steps_to_success=None), ("a", "b")) == lines[0]
+    # the pads' balance, paired over the episodes both measured (episode 1 measured no contact phase in b)
+    balance = [dict(field_contact=v, net_contact=v, field_episode=v, net_episode=v) for v in (.1, .2, .3, .4, .5, .6, .7)]
+    wider = [dict(e, field_contact=None if i == 1 else e["field_contact"] + .1) for i, e in enumerate(balance)]
+    lines = paired(dict(first, force_balance=balance), dict(second, force_balance=wider), ("a", "b")).splitlines()
+    p = wilcoxon([.1, .3, .4, .5, .6, .7], [.2, .4, .5, .6, .7, .8]).pvalue
+    assert lines[2] == ("field asymmetry in contact (0 balanced, 1 one pad alone), mean over the 6 episodes both "
+                        f"measured: a 0.433, b 0.533, Wilcoxon signed-rank two-sided p = {p:.3f}")
 
 
 def test_runs_help_lists_every_command_and_an_unknown_command_names_the_allowed_ones(capsys):

@@ -274,12 +274,15 @@ def test_evaluate_reports_success_with_interval(tmp_path, capfd):
     assert json.loads((tmp_path / "e.json").read_text())["preset"] == "smoke"
     assert report["socket_obs_noise"] == 0.005
     assert sum(report["outcomes"].values()) == 2 and len(report["final_state"]) == 2
+    assert len(report["force_balance"]) == 2 and all(0 <= e["field_episode"] <= 1 for e in report["force_balance"])
     table = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "e.json")], check=True, cwd=ROOT,
                            capture_output=True, text=True).stdout
     assert sum(int(line.split("|")[3]) for line in table.splitlines()[2:]) == 2
     same = subprocess.run([sys.executable, "-m", "vitac.runs", "outcomes", str(tmp_path / "e.json"), str(tmp_path / "e.json"),
                            "--paired"], check=True, cwd=ROOT, capture_output=True, text=True).stdout
     assert "paired: inserted only by e: 0, only by e: 0, exact McNemar two-sided p = 1.000" in same.splitlines()
+    assert any(line.startswith("field asymmetry over the episode") and line.endswith("p = 1.000")
+               for line in same.splitlines())
     # 5 vs 17 discordant episodes: 2 * sum_{k<=5} C(22, k) / 2^22 = 2 * 35,443 / 4,194,304.
     from vitac.analysis.outcomes import mcnemar_exact
 

@@ -49,7 +49,8 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
                            task_overrides=task_overrides or {}))
     check_flag("step_in_main", step_in_main)
     policy, cfg, settings = load_policy(ckpt)
-    settings = dict(settings, randomization=dict(settings["randomization"]), **(task_overrides or {}))
+    settings = dict(settings, randomization=dict(settings["randomization"]), measure_force_balance=True,
+                    **(task_overrides or {}))
     if randomization_scale is not None:
         settings["randomization"]["scale"] = randomization_scale
     if socket_obs_noise is not None:
@@ -87,14 +88,18 @@ def check_seed(seed, episodes: int) -> None:
 
 def episode_statistics(summary: dict) -> dict:
     """The report's success statistics, how each episode ended, as the task's outcome() reports it (m, rad), and
-    what each started from: the values its randomization drew, by factor (`vitac.runs outcomes --by-factor`)."""
+    what each started from: the values its randomization drew, by factor (`vitac.runs outcomes --by-factor`), and
+    how balanced the pads' fields were (vitac/sim/balance.py; `vitac.runs outcomes --paired` compares them)."""
     detail = summary["episodes_detail"]
     return dict(**{k: v for k, v in summary.items() if k != "episodes_detail"},
                 episode_success=[int(e["success"]) for e in detail],
                 final_keypoint_distance_mm=[round(1000 * e["keypoint_distance"], 3) for e in detail],
                 final_state=[{k: round(v, 6) if isinstance(v, float) else v for k, v in e.items()
-                              if k not in ("success", "steps_to_success", "keypoint_distance", "episode", "factors")}
+                              if k not in ("success", "steps_to_success", "keypoint_distance", "episode", "factors",
+                                           "force_balance")}
                              for e in detail],
+                force_balance=[{k: v if v is None else round(v, 6) for k, v in e.get("force_balance", {}).items()}
+                               for e in detail],
                 episode_factors=[{k: np.round(v, 6).tolist() for k, v in e.get("factors", {}).items()} for e in detail])
 
 
@@ -115,6 +120,7 @@ def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out
         for name, value in (oracle_options or {}).items():
             if name not in accepted:
                 refuse(f"oracle_options.{name}", value, f"one of {accepted} (the options of {task_config.ORACLE})")
+    task_config.measure_force_balance = True
     # One cheap observation: a scripted controller reads the physics, not the observations.
     task_config.observations = [next(k for k, s in task_config.observation_specs().items() if s.kind == "vector")]
     env = TaskEnv(task_config, seed=seed)
@@ -140,7 +146,8 @@ def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out
 
 
 # The report's per-episode lists: in the file, not on the console.
-PER_EPISODE = ("steps_to_success", "final_keypoint_distance_mm", "final_state", "episode_factors", "episode_success")
+PER_EPISODE = ("steps_to_success", "final_keypoint_distance_mm", "final_state", "episode_factors", "episode_success",
+               "force_balance")
 
 
 @hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")

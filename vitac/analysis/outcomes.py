@@ -9,7 +9,8 @@ the peg's horizontal offset from the hole axis (mm), its height above the hole f
 
 `--paired` compares two reports of the same held-out episodes (same seed, count and randomization): how
 many episodes only the first inserted, how many only the second, and the exact two-sided McNemar p-value; then
-the mean steps to succeed of each over the episodes both inserted, with the Wilcoxon signed-rank p-value.
+the mean steps to succeed of each over the episodes both inserted, with the Wilcoxon signed-rank p-value; and,
+for reports that measured it, the pads' force balance (vitac/sim/balance.py) of each, paired by episode.
 
 `--by-factor` shows, for each report, success by randomized factor (grasp depth, in-hand tilt, socket noise,
 start pose, ...) and which factors the failures (or, with `--outcome LABEL`, the episodes of one outcome)
@@ -86,6 +87,30 @@ def steps_compared(first: dict, second: dict, names: tuple[str, str]) -> str | N
             f"{names[1]} {y.mean():.1f}, Wilcoxon signed-rank two-sided p = {p:.3f}")
 
 
+BALANCE = {"field_contact": "field asymmetry in contact", "net_contact": "net-force asymmetry in contact",
+           "field_episode": "field asymmetry over the episode", "net_episode": "net-force asymmetry over the episode"}
+
+
+def balance_compared(first: dict, second: dict, names: tuple[str, str]) -> list[str]:
+    """The pads' force balance (vitac/sim/balance.py: 0 balanced, 1 one pad alone) of the two reports on the
+    episodes both measured, with the two-sided Wilcoxon signed-rank p-value (paired by episode)."""
+    if not first.get("force_balance") or not second.get("force_balance"):
+        return []
+    from scipy.stats import wilcoxon
+
+    lines = []
+    for key, label in BALANCE.items():
+        both = [(a[key], b[key]) for a, b in zip(first["force_balance"], second["force_balance"], strict=True)
+                if a.get(key) is not None and b.get(key) is not None]
+        if not both:
+            continue
+        x, y = np.array(both, float).T
+        p = wilcoxon(x, y).pvalue if np.any(x != y) else 1.0
+        lines.append(f"{label} (0 balanced, 1 one pad alone), mean over the {len(both)} episodes both measured: "
+                     f"{names[0]} {x.mean():.3f}, {names[1]} {y.mean():.3f}, Wilcoxon signed-rank two-sided p = {p:.3f}")
+    return lines
+
+
 def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
     differ = [k for k in SAME_EPISODES if first.get(k) != second.get(k)]
     if differ:
@@ -95,7 +120,7 @@ def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
     line = (f"paired: inserted only by {names[0]}: {only_first}, only by {names[1]}: {only_second}, "
             f"exact McNemar two-sided p = {mcnemar_exact(only_first, only_second):.3f}")
     steps = steps_compared(first, second, names)
-    return line if steps is None else f"{line}\n{steps}"
+    return "\n".join([line, *([steps] if steps else []), *balance_compared(first, second, names)])
 
 
 POOLED_SAME = ("ckpt", "randomization_scale", "socket_obs_noise", "randomize_only", "policy")

@@ -101,7 +101,10 @@ class TaskEnv(gym.Env):
         self._needs_reset = terminated or truncated
         info = self._info()
         if self._needs_reset:  # how the episode ended, and what it started from, for evaluation reports
-            info.update(self._env.task.outcome(self._env.physics), factors=dict(self._env.task.episode_factors))
+            task = self._env.task
+            info.update(task.outcome(self._env.physics), factors=dict(task.episode_factors))
+            if task.config.measure_force_balance:
+                info.update(force_balance=task.force_balance.summary())
             if self._env.diverged:  # composer ended a diverged simulation
                 info.update(outcome="physics diverged", success=False)
             elif not finite:

@@ -17,6 +17,7 @@ from dm_control.composer.observation import observable
 from dm_env import specs
 
 from vitac.sim.arena import Arena
+from vitac.sim.balance import ForceBalance
 from vitac.sim.contact import part_contact_forces
 from vitac.sim.gripper import PAD_LENGTH, PAD_WIDTH, ParallelGripper
 from vitac.sim.poses import hand_target
@@ -66,6 +67,7 @@ class GraspedPartTask(composer.Task):
         self._f_ref = np.zeros((2, 3, config.taxel_rows, config.taxel_cols))
         self.first_success_step = -1
         self.episode_factors: dict = {}  # this episode's randomized values, by factor name (evaluation reports)
+        self.force_balance = ForceBalance()  # filled where config.measure_force_balance (evaluation reports)
         self._build_observables()
 
     def _build_parts(self) -> None:
@@ -154,6 +156,7 @@ class GraspedPartTask(composer.Task):
         self.first_success_step = -1
         self._f_ref[:] = 0.0
         self._cache.clear()
+        self.force_balance.reset()
         if self.config.tactile_residual:  # paper eq. 2: residual against the field recorded at grasp
             self._f_ref[:] = self.raw_tactiles(physics)
 
@@ -168,6 +171,9 @@ class GraspedPartTask(composer.Task):
 
     def after_step(self, physics, random_state):
         self._step += 1
+        if self.config.measure_force_balance:
+            touching = bool(np.any(self.contact_forces(physics)[:3]))  # the fixed part pushes on the held one
+            self.force_balance.add(self.tactile_field(physics, 0), self.tactile_field(physics, 1), touching)
         if self.first_success_step < 0 and self.is_success(physics):
             self.first_success_step = self._step
 
@@ -227,7 +233,7 @@ class GraspedPartTask(composer.Task):
                     randomization_scale=self.randomization_scale,
                     f_ref=self._f_ref.copy(), first_success_step=self.first_success_step,
                     action_delta=self._action_delta, mocap_pos=physics.data.mocap_pos.copy(),
-                    episode_factors=dict(self.episode_factors),
+                    episode_factors=dict(self.episode_factors), force_balance=self.force_balance.state(),
                     pad_solref=physics.model.geom_solref[ids["pad_geoms"]].copy(),
                     dof_damping=physics.model.dof_damping[ids["hand_dof"]].copy(),
                     # The last substep's solve cannot be recomputed from the state: keep it, with its state key.
@@ -249,6 +255,8 @@ class GraspedPartTask(composer.Task):
         self.first_success_step = state["first_success_step"]
         self._action_delta = state["action_delta"]
         self.episode_factors = dict(state.get("episode_factors", {}))  # absent from older checkpoints
+        if "force_balance" in state:  # likewise
+            self.force_balance.load_state(state["force_balance"])
 
     # --------------------------------------------------------------------------------------- sensors
     def _velocity(self, physics, obj_type, obj_id):

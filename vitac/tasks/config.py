@@ -73,6 +73,7 @@ class GraspTaskConfig:
     tactile_kt: float = 100.0
     tactile_mu: float = 2.0
     tactile_residual: bool = True
+    measure_force_balance: bool = False  # vitac.evaluate turns it on: the pads' asymmetry per episode (sim/balance.py)
     camera_size: int = 64
     camera_fovy: float = 75.0
     observations: list = field(default_factory=list)  # empty: every declared observation
@@ -150,6 +151,7 @@ class GraspTaskConfig:
             if len(value) != 6 or any(v < 0 for v in value):
                 refuse(f"{key}.{name}", value, "6 non-negative numbers (3 translational, 3 rotational)")
         check_flag(f"{key}.tactile_residual", self.tactile_residual)
+        check_flag(f"{key}.measure_force_balance", self.measure_force_balance)
         check_flag(f"{key}.randomization.enabled", self.randomization.enabled)
         if self.camera_fovy >= 180:
             refuse(f"{key}.camera_fovy", self.camera_fovy, "a field of view below 180 degrees")
