@@ -238,6 +238,8 @@ def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_an
     (["vitac.evaluate", "ckpt=pretrained/privileged", "episodes=0"], "error: episodes=0 is not allowed"),
     (["vitac.evaluate", "policy=oracle", "+oracle_options.foo=1"],
      "error: oracle_options.foo=1 is not allowed: expected one of ['align_tolerance', 'hover', 'observed_socket'"),
+    (["vitac.train", "hydra.run.dir=/tmp/" + "a" * 300], "error: hydra.run.dir=/tmp/aaaa"),  # before Hydra makes it
+    (["vitac.evaluate", "hydra.run.dir=" + "b/" * 2100], "error: hydra.run.dir=b/b/b/"),
 ])
 def test_a_refused_value_prints_one_line_and_exits_2(command, message):
     import subprocess

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 from pathlib import Path
 
 import hydra
@@ -25,7 +26,7 @@ from vitac.envs.vector_env import TaskVectorEnv
 from vitac.run_config import load_policy
 from vitac.tasks import make_task_config
 from vitac.utils.checks import check_flag, check_int, is_int, refuse, refuse_non_finite, resolve_groups
-from vitac.utils.cli import refusals_in_one_line
+from vitac.utils.cli import refusals_in_one_line, refuse_unusable_output_folders
 from vitac.utils.quiet import quiet_third_party
 from vitac.utils.records import write_json
 
@@ -171,4 +172,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    refuse_unusable_output_folders(sys.argv[1:])
     main()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 import hydra
@@ -28,7 +29,7 @@ from vitac.run_dirs import (
 )
 from vitac.tasks import import_object, make_task_config
 from vitac.utils.checkpoint import PortableCheckpointIO
-from vitac.utils.cli import refusals_in_one_line
+from vitac.utils.cli import refusals_in_one_line, refuse_unusable_output_folders
 from vitac.utils.instantiate import instantiate
 from vitac.utils.quiet import OfflineWandbLogger, quiet_third_party
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
@@ -139,4 +140,5 @@ def main(cfg: DictConfig) -> float:
 
 
 if __name__ == "__main__":
+    refuse_unusable_output_folders(sys.argv[1:])
     main()

@@ -104,3 +104,28 @@ def refusals_in_one_line(main):
             sys.exit(2)
 
     return run
+
+
+OUTPUT_FOLDER_KEYS = ("hydra.run.dir", "hydra.sweep.dir", "hydra.sweep.subdir")
+
+
+def refuse_unusable_output_folders(argv: list[str]) -> None:
+    """Hydra makes its output folder before an entry point's code runs, and a name the file system cannot hold then
+    fails as an OSError naming no key: a Hydra entry point checks its command line's output folders first, and
+    refuses one on a line, with status 2."""
+    name_max, path_max = os.pathconf("/", "PC_NAME_MAX"), os.pathconf("/", "PC_PATH_MAX")
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        if not sep or key.lstrip("+~") not in OUTPUT_FOLDER_KEYS:
+            continue
+        too_long = [part for part in Path(value).parts if len(os.fsencode(part)) > name_max]
+        room = 200  # for what a run writes inside it (checkpoints/iter_00050.ckpt, wandb/...)
+        if too_long:
+            problem = f"a folder name of {len(os.fsencode(too_long[0]))} bytes is not allowed: at most {name_max}"
+        elif len(os.fsencode(os.path.abspath(value))) + room > path_max:
+            problem = f"a path this long is not allowed: at most {path_max - room} bytes, leaving room for the run's files"
+        else:
+            continue
+        shown = value if len(value) <= 80 else f"{value[:40]}...{value[-20:]}"
+        print(f"error: {key}={shown}: {problem}", file=sys.stderr, flush=True)
+        sys.exit(2)
