@@ -46,7 +46,7 @@ def _resolve(target: str):
 
 @pytest.mark.parametrize("path,node", list(_targets()), ids=lambda x: str(x)[-40:] if isinstance(x, Path) else "")
 def test_target_resolves_and_keys_match_signature(path, node):
-    from vitac.algos.run_checks import accepted_keywords
+    from vitac.utils.checks import accepted_keywords
 
     target = _resolve(node["_target_"])
     params = accepted_keywords(target)  # a class passing **kwargs on to its base takes the base's keys too

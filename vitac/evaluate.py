@@ -114,8 +114,8 @@ def evaluate_scripted(policy: str, settings: dict, episodes: int, seed: int, out
     check_seed(seed, episodes)
     task_config = make_task_config(settings)
     if policy == "oracle":  # an option the oracle does not take is refused before anything is built
-        from vitac.algos.run_checks import accepted_keywords
         from vitac.tasks import import_object
+        from vitac.utils.checks import accepted_keywords
 
         accepted = sorted(accepted_keywords(import_object(task_config.ORACLE)) - {"task"})
         for name, value in (oracle_options or {}).items():

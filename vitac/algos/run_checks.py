@@ -4,8 +4,6 @@ is allowed. `vitac.evaluate` checks its own keys with the same helpers (`vitac/u
 
 from __future__ import annotations
 
-import inspect
-
 import torch
 
 from vitac.algos.buffer import check_batch_layout
@@ -16,6 +14,7 @@ from vitac.algos.lr_schedule import make_lr_schedule
 from vitac.tasks import import_object
 from vitac.utils.checkpoint import resolve_checkpoint
 from vitac.utils.checks import (
+    accepted_keywords,
     check_flag,
     check_int,
     is_int,
@@ -68,20 +67,6 @@ PLAIN_GROUPS = {"task": None, "obs": ("name", "modalities"), "preset": ("name",)
                             "max_nonfinite_iterations")}
 TARGET_GROUPS = ("algo", "envs", "curriculum", "eval", "checkpoint", "fusion", "reg", "head", "critic", "residual",
                  "encoder.image", "encoder.vector")
-
-
-def accepted_keywords(target) -> set | None:
-    """The keyword arguments `target` accepts: its own and, for a class whose constructor passes **kwargs on to its
-    base class's, that one's too; None when it accepts any."""
-    names = set()
-    for owner in target.__mro__ if isinstance(target, type) else (target,):
-        if isinstance(target, type) and "__init__" not in vars(owner):
-            continue
-        params = inspect.signature(owner).parameters
-        names |= {n for n, p in params.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
-        if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
-            return names
-    return None
 
 
 def check_keys(cfg: dict) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 import numbers
 import os
@@ -86,3 +87,17 @@ def check_widths(key: str, value, length: int | None = None) -> None:
     if (not isinstance(value, (list, tuple)) or not all(is_int(v) and v >= 1 for v in value)
             or (length is not None and len(value) != length)):
         refuse(key, value, f"a list of {length or 'any number of'} positive integers")
+
+
+def accepted_keywords(target) -> set | None:
+    """The keyword arguments `target` accepts: its own and, for a class whose constructor passes **kwargs on to its
+    base class's, that one's too; None when it accepts any."""
+    names = set()
+    for owner in target.__mro__ if isinstance(target, type) else (target,):
+        if isinstance(target, type) and "__init__" not in vars(owner):
+            continue
+        params = inspect.signature(owner).parameters
+        names |= {n for n, p in params.items() if p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)}
+        if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            return names
+    return None
