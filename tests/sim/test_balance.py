@@ -57,3 +57,24 @@ def test_an_episode_with_the_measure_on_ends_with_its_balance_in_the_info(task):
     state = env.task.get_state(env.physics)["force_balance"]
     assert sum(state["counts"].values()) > 0
     env.close()
+
+
+def test_the_balance_penalty_is_off_by_default_and_otherwise_takes_its_scale_times_the_field_asymmetry():
+    rewards = {}
+    for scale in (0.0, 2.0):
+        env = TaskEnv({"observations": ["proprio"], "balance_penalty_scale": scale}, seed=0)
+        env.reset(seed=0)
+        task, physics = env.task, env.physics
+        rewards[scale] = []
+        for a in np.random.default_rng(1).uniform(-1, 1, (30, 6)):
+            _, reward, *_ = env.step(a)
+            asymmetry = step_asymmetries(task.tactile_field(physics, 0), task.tactile_field(physics, 1))["field"]
+            rewards[scale].append((reward, asymmetry or 0.0))
+        env.close()
+    unpenalized = np.array(rewards[0.0])
+    penalized = np.array(rewards[2.0])
+    assert np.array_equal(unpenalized[:, 1], penalized[:, 1])  # the same episode: the penalty does not act
+    np.testing.assert_allclose(penalized[:, 0], unpenalized[:, 0] - 2.0 * unpenalized[:, 1], rtol=0, atol=1e-12)
+    assert unpenalized[:, 1].max() > 0.01  # and there was an asymmetry to pay for
+    with pytest.raises(ValueError, match="balance_penalty_scale"):
+        TaskEnv({"balance_penalty_scale": -1.0})

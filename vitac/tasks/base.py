@@ -17,7 +17,7 @@ from dm_control.composer.observation import observable
 from dm_env import specs
 
 from vitac.sim.arena import Arena
-from vitac.sim.balance import ForceBalance
+from vitac.sim.balance import ForceBalance, step_asymmetries
 from vitac.sim.contact import part_contact_forces
 from vitac.sim.gripper import PAD_LENGTH, PAD_WIDTH, ParallelGripper
 from vitac.sim.poses import hand_target
@@ -287,6 +287,15 @@ class GraspedPartTask(composer.Task):
     def tactile_field(self, physics, side: int) -> np.ndarray:
         """Residual force field of one pad (paper eq. 2), float32 (3, rows, cols)."""
         return (self.raw_tactile(physics, side) - self._f_ref[side]).astype(np.float32)
+
+    def balance_penalty(self, physics) -> float:
+        """`balance_penalty_scale` times this step's field asymmetry between the pads (0 where neither feels
+        anything), for the task's reward."""
+        scale = self.config.balance_penalty_scale
+        if not scale:
+            return 0.0
+        asymmetry = step_asymmetries(self.tactile_field(physics, 0), self.tactile_field(physics, 1))["field"]
+        return scale * (asymmetry or 0.0)
 
     def contact_forces(self, physics) -> np.ndarray:
         """World-frame forces on the held part from the fixed part, the left pad and the right pad (9,): those

@@ -74,6 +74,9 @@ class GraspTaskConfig:
     tactile_mu: float = 2.0
     tactile_residual: bool = True
     measure_force_balance: bool = False  # vitac.evaluate turns it on: the pads' asymmetry per episode (sim/balance.py)
+    # A reward penalty of this times the pads' field asymmetry at each step (sim/balance.py; 0: off): the symmetry
+    # prior's aim put into the objective instead of into the embeddings.
+    balance_penalty_scale: float = 0.0
     camera_size: int = 64
     camera_fovy: float = 75.0
     observations: list = field(default_factory=list)  # empty: every declared observation
@@ -142,7 +145,8 @@ class GraspTaskConfig:
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not value > 0:
                 refuse(f"{key}.{name}", value, "a number > 0")
-        for name in ("pad_friction", "tactile_kt", "tactile_mu", "joint_damping", "finger_kd", "taxel_margin"):
+        for name in ("pad_friction", "tactile_kt", "tactile_mu", "joint_damping", "finger_kd", "taxel_margin",
+                     "balance_penalty_scale"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 refuse(f"{key}.{name}", value, "a number >= 0")

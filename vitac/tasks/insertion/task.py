@@ -107,7 +107,7 @@ class InsertionTask(GraspedPartTask):
         kp_exp = decay / (decay * decay + 0.0001 * decay + 1.0)
         reward = cfg.keypoint_reward_scale * (kp + kp_exp) - cfg.action_gradient_penalty_scale * self._action_delta
         reward += cfg.success_reward_scale * float(self.is_success(physics))
-        return reward - cfg.lateral_reward_scale * offset
+        return reward - cfg.lateral_reward_scale * offset - self.balance_penalty(physics)
 
     # ------------------------------------------------------------------------------------ task state
     def socket_pos(self, physics) -> np.ndarray:

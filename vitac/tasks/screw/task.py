@@ -118,7 +118,8 @@ class ScrewTask(GraspedPartTask):
     def get_reward(self, physics):
         cfg = self.config
         nut_to_goal, fingers_to_nut = self.keypoint_distances(physics)
-        return -cfg.keypoint_reward_scale * (nut_to_goal + fingers_to_nut) - cfg.action_gradient_penalty_scale * self._action_delta
+        return (-cfg.keypoint_reward_scale * (nut_to_goal + fingers_to_nut)
+                - cfg.action_gradient_penalty_scale * self._action_delta - self.balance_penalty(physics))
 
     def is_success(self, physics) -> bool:
         return float(np.linalg.norm(self.nut_pos(physics) - self.goal_pos(physics))) < self.config.success_distance
