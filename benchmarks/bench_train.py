@@ -20,7 +20,7 @@ from hydra import compose, initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import open_dict
 
-from vitac.train import train
+from vitac.training import train
 from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 

@@ -18,7 +18,7 @@ from vitac.algos.ppo import PPO
 from vitac.evaluate import evaluate
 from vitac.run_config import load_policy
 from vitac.tasks.insertion.config import InsertionConfig
-from vitac.train import train
+from vitac.training import train
 from vitac.viz import policy_actor
 
 pytestmark = [pytest.mark.gpu, pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")]

@@ -14,7 +14,7 @@ import torch
 
 from tests.conftest import CONF, compose_config
 from vitac.evaluate import evaluate
-from vitac.train import train
+from vitac.training import train
 
 ROOT = Path(CONF).parent
 SMOKE = ["preset=smoke", "obs=wrist_tactile", "fusion=cmt", "reg=sym"]

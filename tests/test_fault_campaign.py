@@ -16,7 +16,7 @@ import torch
 
 from tests.conftest import compose_config
 from tests.test_faults import JOB, SMOKE, _training_job_after
-from vitac.train import train
+from vitac.training import train
 from vitac.utils.checkpoint import load_checkpoint
 
 SIGKILLS, DAMAGES, WORKER_KILLS = 20, 50, 10

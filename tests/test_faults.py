@@ -13,7 +13,7 @@ import torch
 from tests.conftest import compose_config
 from vitac.envs.gym_env import TaskEnv
 from vitac.run_dirs import check_output_dir
-from vitac.train import train
+from vitac.training import train
 
 SMOKE = ["preset=smoke", "experiment=table1/privileged", "logger=csv"]
 

@@ -17,7 +17,7 @@ import yaml
 from tests.conftest import CONF, compose_config
 from vitac.analysis import table1
 from vitac.run_dirs import read_metrics
-from vitac.train import train
+from vitac.training import train
 
 ROOT = Path(CONF).parent
 PER_ITERATION = 2 * 16  # the synthetic runs' envs x horizon

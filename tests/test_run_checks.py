@@ -12,7 +12,7 @@ import torch
 from tests.conftest import compose_config
 from vitac.evaluate import evaluate
 from vitac.run_config import load_policy
-from vitac.train import train
+from vitac.training import train
 from vitac.utils.checks import resolve_groups, resolve_threads
 
 SMOKE = ["preset=smoke", "obs=wrist_tactile", "fusion=cmt", "reg=sym"]
@@ -63,7 +63,7 @@ def test_bad_accelerator_is_refused_before_simulation(tmp_path, monkeypatch, val
 ])
 def test_bad_run_values_and_seed_are_refused_before_anything_is_built(tmp_path, monkeypatch, override, pattern):
     monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
-    monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
+    monkeypatch.setattr("vitac.training.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(ValueError, match=pattern):
         train(compose_config(SMOKE + override.split(), output_dir=tmp_path / "x"))
     assert not (tmp_path / "x").exists()  # nor a run directory left behind
@@ -223,7 +223,7 @@ def test_corrupt_critic_checkpoint_is_refused(tmp_path):
 def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_anything_is_built(
         tmp_path, monkeypatch, override, error, pattern):
     monkeypatch.setattr("vitac.envs.vector_env.TaskVectorEnv", lambda *a, **k: pytest.fail("simulation started"))
-    monkeypatch.setattr("vitac.train.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
+    monkeypatch.setattr("vitac.training.build_policy_from_config", lambda *a, **k: pytest.fail("policy built"))
     with pytest.raises(error, match=pattern):
         train(compose_config(SMOKE + [override], output_dir=tmp_path / "x"))
 

@@ -404,3 +404,14 @@ def test_outcomes_by_factor_finds_the_factor_the_failures_come_from(tmp_path):
                                  cwd=ROOT, capture_output=True, text=True)
         assert refused.returncode != 0 and message in refused.stderr and "Traceback" not in refused.stderr
         assert "| report |" not in refused.stdout  # refused before any table
+
+
+def test_no_benchmark_script_imports_an_entry_point_module():
+    import ast
+
+    entry_points = {"vitac.train", "vitac.evaluate", "vitac.report", "vitac.runs", "vitac.export", "vitac.video"}
+    for script in (ROOT / "benchmarks").glob("*.py"):
+        for node in ast.walk(ast.parse(script.read_text())):
+            names = [node.module] if isinstance(node, ast.ImportFrom) else [
+                a.name for a in node.names] if isinstance(node, ast.Import) else []
+            assert not set(names) & entry_points, f"{script.name} imports {names}: import the library module instead"

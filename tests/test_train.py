@@ -20,7 +20,7 @@ from vitac.models.encoders import native_bfloat16
 from vitac.models.normalizer import RunningNormalizer
 from vitac.run_config import build_policy_from_config, load_policy, task_settings
 from vitac.tasks.insertion.config import InsertionConfig
-from vitac.train import load_weights, train
+from vitac.training import load_weights, train
 from vitac.utils.checkpoint import load_checkpoint
 
 ROOT = Path(CONF).parent
@@ -39,7 +39,7 @@ def _losses(run):
 
 
 def test_smoke_run_writes_checkpoint_and_metrics_and_logs_every_loss_term(tmp_path, caplog):
-    caplog.set_level(logging.INFO, logger="vitac.train")
+    caplog.set_level(logging.INFO, logger="vitac.training")
     run = train(compose_config(SMOKE, output_dir=tmp_path / "run"))
     precision = "bfloat16" if native_bfloat16("cpu") else "float32"  # the default, auto, follows the CPU
     assert f"image convolutions in {precision} (encoder.image.bf16=auto)" in caplog.messages

@@ -12,10 +12,10 @@ from omegaconf import OmegaConf, open_dict
 
 class CheckedSweeper(BasicSweeper):
     """`hydra.sweeper` of conf/config.yaml: BasicSweeper's jobs, in its order, each checked as `vitac.train` would
-    check it (`vitac.train.check_job`) before the first is launched."""
+    check it (`vitac.training.check_job`) before the first is launched."""
 
     def sweep(self, arguments: list[str]):
-        from vitac.train import check_job
+        from vitac.training import check_job
 
         parser = OverridesParser.create(config_loader=self.hydra_context.config_loader)
         overrides = parser.parse_overrides(self._parse_config() + list(arguments))

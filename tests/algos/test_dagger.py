@@ -147,7 +147,7 @@ def test_bad_dagger_values_are_refused_naming_the_key():
 def test_a_linear_learning_rate_falls_from_lr_towards_0_at_the_last_iteration(tmp_path):
     from tests.conftest import compose_config as compose
     from vitac.run_dirs import read_metrics
-    from vitac.train import train
+    from vitac.training import train
 
     def rates(run_dir):
         return [float(r["charts/lr"]) for r in read_metrics(run_dir) if r.get("charts/lr")]
@@ -169,7 +169,7 @@ def test_a_student_with_the_teachers_observations_learns_to_insert(tmp_path):
     recipe/privileged_dagger fits the teacher's actions and inserts on its own after the hand-over."""
     import csv
 
-    from vitac.train import train
+    from vitac.training import train
 
     run = train(compose_config(["experiment=recipe/privileged_dagger", "logger=csv"], output_dir=tmp_path / "run"))
     rows = [r for r in csv.DictReader(open(run["metrics_csv"])) if r.get("losses/action_mse")]
@@ -234,7 +234,7 @@ def test_an_aggregated_dataset_resumes_exactly(tmp_path):
     """The kept rollouts travel in checkpoints: a run killed after iteration 2 and resumed trains iteration 3 on
     the same two rollouts as the uninterrupted run."""
     from vitac.run_dirs import read_metrics
-    from vitac.train import train
+    from vitac.training import train
 
     def losses(run_dir):
         return {r["epoch"]: (float(r["losses/distill_loss"]), r["charts/reward_per_step"])

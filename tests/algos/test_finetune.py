@@ -20,7 +20,7 @@ FINETUNE = STUDENT + ["finetune=kickstart", "envs.num_envs=2", "envs.num_workers
 
 @pytest.fixture(scope="module")
 def student(tmp_path_factory):
-    from vitac.train import train
+    from vitac.training import train
 
     out = tmp_path_factory.mktemp("student")
     train(compose_config(STUDENT + ["algo=dagger", "trainer.iterations=1"], output_dir=out))
@@ -30,7 +30,7 @@ def student(tmp_path_factory):
 @pytest.fixture(scope="module")
 def finetuned(student, tmp_path_factory):
     """Five iterations: two of warm-up, two of the imitation term's anneal, one of PPO alone."""
-    from vitac.train import train
+    from vitac.training import train
 
     out = tmp_path_factory.mktemp("finetuned")
     train(compose_config(FINETUNE + [f"init_ckpt={student}", "trainer.iterations=5"], output_dir=out))
@@ -57,7 +57,7 @@ def test_kickstart_freezes_the_actor_through_the_warm_up_then_anneals_the_imitat
 
 
 def test_kickstart_resumes_mid_schedule_exactly(student, finetuned, tmp_path):
-    from vitac.train import train
+    from vitac.training import train
 
     def losses(run_dir):
         return {r["epoch"]: (float(r["losses/loss"]), float(r["losses/imitation_loss"]), r["charts/reward_per_step"],
@@ -105,7 +105,7 @@ def test_a_critic_reading_the_actors_memory_starts_as_the_teachers_and_moves_no_
 
 def test_a_residual_policy_starts_as_its_student_bit_for_bit_and_trains_only_its_head_and_critic(student, tmp_path):
     from vitac.run_config import load_policy
-    from vitac.train import train
+    from vitac.training import train
 
     job = FINETUNE[:3] + ["finetune=residual", "envs.num_envs=2", "envs.num_workers=0", "algo.horizon=16",
                           "algo.seq_len=8", "algo.minibatch_size=16", "algo.lr=1e-3", "algo.critic_warmup_iterations=1",

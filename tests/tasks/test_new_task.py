@@ -20,7 +20,7 @@ from vitac.sim.poses import DOWN
 from vitac.sim.tactile import box
 from vitac.tasks.base import GraspedPartTask
 from vitac.tasks.config import GraspTaskConfig, ObservationSpec
-from vitac.train import train
+from vitac.training import train
 
 HALF, LENGTH, HOLE_HALF, WALL = 0.008, 0.05, 0.0095, 0.006
 

@@ -226,7 +226,7 @@ def test_the_papers_screw_policies_train_and_distil_and_a_teacher_of_another_tas
     import torch
 
     from tests.conftest import compose_config
-    from vitac.train import train
+    from vitac.training import train
 
     teacher = train(compose_config(["preset=smoke", "experiment=screw/privileged_contact"], output_dir=tmp_path / "t"))
     for row in ("tactile", "wrist"):
