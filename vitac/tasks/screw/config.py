@@ -19,6 +19,14 @@ class Randomization(GraspRandomization):
     bolt_pos_high: list = field(default_factory=lambda: [0.55, 0.05])
     # Turns of thread between the nut and its goal: sets the nut's height and its yaw on the thread together.
     start_turns: list = field(default_factory=lambda: [3.0, 3.5])
+    # start=off_thread: the nut's bottom this high above the bolt's tip (m), its axis this far off the bolt's (x, y in
+    # m), its yaw (rad; the thread's phase then is anything), and the bolt's observed position off by up to
+    # bolt_obs_noise (m, x and y) for the episode.
+    hover: list = field(default_factory=lambda: [0.002, 0.005])
+    start_offset_low: list = field(default_factory=lambda: [-0.002, -0.002])
+    start_offset_high: list = field(default_factory=lambda: [0.002, 0.002])
+    start_yaw: list = field(default_factory=lambda: [-math.pi, math.pi])
+    bolt_obs_noise: float = 0.0
     # Nut bottom above the fingertips (m), and its offset along the pads (across the closing axis).
     grasp_depth: list = field(default_factory=lambda: [0.001, 0.004])
     grasp_offset: list = field(default_factory=lambda: [-0.002, 0.002])
@@ -35,6 +43,9 @@ class ScrewConfig(GraspTaskConfig):
     TASK: ClassVar[str] = "vitac.tasks.screw.task.ScrewTask"
     ORACLE: ClassVar[str] = "vitac.tasks.screw.oracle.OracleController"
 
+    # engaged: the nut starts on the thread, `start_turns` above its goal (the paper's figure); off_thread: above
+    # the bolt's tip, not engaged (Factory's NutThread), so a policy must align it and find the thread.
+    start: str = "engaged"
     episode_steps: int = 300
     # 1/240 s physics steps, twice Factory's rate (1/60 s, 2 substeps); stable with the thread's 0.01 s contacts.
     physics_substeps: int = 4
@@ -98,11 +109,17 @@ class ScrewConfig(GraspTaskConfig):
         if not self.bolt_contact_timeconst >= min_timeconst:
             refuse("task.bolt_contact_timeconst", self.bolt_contact_timeconst,
                    f"a time constant >= 2 physics timesteps ({min_timeconst:.4g} s), which MuJoCo needs for stability")
+        if self.start not in STARTS:
+            refuse("task.start", self.start, f"one of {list(STARTS)}")
         r = self.randomization
-        for key in ("bolt_pos_low", "bolt_pos_high"):
+        for key in ("bolt_pos_low", "bolt_pos_high", "start_offset_low", "start_offset_high"):
             if len(getattr(r, key)) != 2:
                 refuse(f"task.randomization.{key}", getattr(r, key), "2 numbers (x, y in m)")
-        for key in ("start_turns", "grasp_depth", "grasp_offset", "pad_stiffness", "pad_damping", "joint_damping_noise"):
+        if not r.bolt_obs_noise >= 0:
+            refuse("task.randomization.bolt_obs_noise", r.bolt_obs_noise, "a number >= 0")
+        if r.hover[0] < 0:
+            refuse("task.randomization.hover", r.hover, "a range of heights >= 0 above the bolt's tip")
+        for key in ("start_turns", "hover", "start_yaw", "grasp_depth", "grasp_offset", "pad_stiffness", "pad_damping", "joint_damping_noise"):
             value = getattr(r, key)
             if len(value) != 2 or value[0] > value[1]:
                 refuse(f"task.randomization.{key}", value, "[low, high] with low <= high")
@@ -123,6 +140,9 @@ class ScrewConfig(GraspTaskConfig):
         if self.joint_damping + r.joint_damping_noise[0] < 0:
             refuse("task.randomization.joint_damping_noise", r.joint_damping_noise,
                    f"a range that keeps joint damping ({self.joint_damping}) non-negative")
+
+
+STARTS = ("engaged", "off_thread")
 
 
 def thread_yaw(height: float) -> float:

@@ -4,27 +4,74 @@ from __future__ import annotations
 
 import numpy as np
 
+from vitac.tasks.screw import props
+from vitac.tasks.screw.config import thread_yaw
 from vitac.tasks.screw.task import ROTATION_AXIS, ScrewTask
 
 
 class OracleController:
-    """Turn the nut the tightening way at a fixed rate while pressing it lightly onto the thread.
+    """Turn the nut the tightening way at a fixed rate while pressing it lightly onto the thread; from off the
+    thread, first bring the nut's axis over the bolt's (true poses), and press only while it is there.
 
     Args:
         task: the screw task whose physics the controller reads.
         turn: how much of the full tightening step (`task.rot_action_scale` rad a control step) to turn.
         press: the z action (negative: down; -0.1 sets the hand's target 1 mm below it at the default scale).
+        align_tolerance: how far (m) the nut's axis may be off the bolt's while it presses.
     """
 
-    def __init__(self, task: ScrewTask, turn: float = 1.0, press: float = -0.1):
-        self.task, self.turn, self.press = task, turn, press
+    def __init__(self, task: ScrewTask, turn: float = 1.0, press: float = -0.1, align_tolerance: float = 0.0003):
+        self.task, self.turn, self.press, self.align_tolerance = task, turn, press, align_tolerance
+        self.hover = 0.0005  # how far above the bolt's top thread turn the nut's is turned to the thread's phase
+        self.aligned = False
 
     def reset(self):
-        pass
+        self.aligned = False
 
     def __call__(self, physics) -> np.ndarray:
         action = np.zeros(6)
+        task = self.task
+        if task.config.action_axes[0] and task.config.action_axes[1]:
+            action = self._off_thread(physics)
+            if action is not None:
+                return action
+            action = np.zeros(6)
+            action[:2] = self._centre(physics, turning=True)
         action[2] = self.press
         # Tightening is a negative world z rotation, which the unidirectional mapping -(a + 1) / 2 reaches at a = 2 t - 1.
         action[ROTATION_AXIS] = 2 * self.turn - 1 if self.task.config.unidirectional_rotation else -self.turn
         return action
+
+    def _centre(self, physics, turning: bool) -> np.ndarray:
+        """The x, y action that puts the nut's axis on the bolt's; while turning, against the circle the nut, held
+        off the hand's axis, makes about it."""
+        task = self.task
+        off_axis = (task.goal_pos(physics) - task.nut_pos(physics))[:2]
+        if turning:
+            held = (task.nut_pos(physics) - physics.data.site_xpos[task._ids["tcp"]])[:2]
+            angle = -self.turn * task.config.rot_action_scale
+            turned = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]) @ held
+            off_axis = off_axis - (turned - held)
+        # Three times the error: the compliant hand, its nut pressed on the bolt, stops short of a target at the error.
+        return np.clip(3.0 * off_axis / task.config.pos_action_scale, -1.0, 1.0)
+
+    def _off_thread(self, physics) -> np.ndarray | None:
+        """Until the threads meet: centre the nut over the bolt, lower it to just above the bolt's top thread turn,
+        turn it to the thread's phase there; None once it is on the thread (then screw as from an engaged start)."""
+        task = self.task
+        if task.thread_gap(physics) < -0.5 * props.PITCH:
+            self.aligned = True
+            return None
+        action = np.zeros(6)
+        action[:2] = self._centre(physics, turning=False)
+        if np.linalg.norm((task.goal_pos(physics) - task.nut_pos(physics))[:2]) > self.align_tolerance:
+            return action
+        if task.thread_gap(physics) > self.hover:
+            action[2] = -min(1.0, (task.thread_gap(physics) - 0.5 * self.hover) / task.config.pos_action_scale)
+            return action
+        height = task.nut_pos(physics)[2] - task.fixed_pos(physics)[2]
+        phase = (thread_yaw(height) - task.nut_yaw(physics) + np.pi) % (2 * np.pi) - np.pi
+        if abs(phase) > 0.1:
+            action[ROTATION_AXIS] = np.clip(phase / task.config.rot_action_scale, -1.0, 1.0)
+            return action
+        return None

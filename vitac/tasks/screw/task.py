@@ -15,7 +15,9 @@ from vitac.tasks.screw import props
 from vitac.tasks.screw.config import ScrewConfig, thread_yaw
 
 ROTATION_AXIS = 5  # the action's world z-rotation component (negative: tightening, clockwise seen from above)
-ACTION_OF_JOINT = [0, 1, 2, 5, 4, 3]  # the hand's joints (x, y, z, yaw, pitch, roll) against the action's axes
+ACTION_OF_JOINT = [0, 1, 2, 5, 4, 3]
+# A nut on the thread tilted past this (rad) has its thread across the bolt's: an engaged one has 0.2 mm of play.
+CROSS_THREAD_TILT = math.radians(3.0)  # the hand's joints (x, y, z, yaw, pitch, roll) against the action's axes
 
 
 class ScrewTask(GraspedPartTask):
@@ -37,6 +39,10 @@ class ScrewTask(GraspedPartTask):
         self._axes = np.asarray(config.action_axes, bool)
         self._held_joints = ~self._axes[ACTION_OF_JOINT]
         self._hold_target = np.zeros(6)
+        self._bolt_noise = np.zeros(3)  # this episode's error of the bolt's observed position
+        # The nut's thread starts this far above its bottom: it meets the bolt's when the nut's bottom is this far
+        # below the bolt's tip.
+        self._thread_margin = 0.5 * (props.NUT_HEIGHT - config.nut_thread_turns * props.PITCH)
         super().__init__(config, offscreen_size)
 
     def _build_parts(self):
@@ -58,15 +64,24 @@ class ScrewTask(GraspedPartTask):
         self._set_pad_compliance(physics, stiffness, damping)
         damping_noise = sample("joint_damping_noise", *r.joint_damping_noise)
         physics.model.dof_damping[ids["hand_dof"]] = self._nominal_damping + damping_noise
-        # The nut engaged on the thread `turns` above its goal: its height fixes its yaw.
-        height = props.BOLT_HEAD_HEIGHT + float(sample("start_turns", *r.start_turns)) * props.PITCH
-        nut_yaw = thread_yaw(height)
+        nut_xy = bolt[:2].copy()
+        if self.config.start == "engaged":  # on the thread, `start_turns` above its goal: its height fixes its yaw
+            height = props.BOLT_HEAD_HEIGHT + float(sample("start_turns", *r.start_turns)) * props.PITCH
+            nut_yaw = thread_yaw(height)
+        else:  # above the bolt's tip, anywhere in the thread's phase
+            height = props.BOLT_HEAD_HEIGHT + props.SHANK_LENGTH + float(sample("hover", *r.hover))
+            nut_xy += sample("start_offset", r.start_offset_low, r.start_offset_high)
+            nut_yaw = float(sample("start_yaw", *r.start_yaw))
         # The hand grips two opposite flats: its yaw is the nut's modulo a flat (60 deg), nearest to zero.
         flat = math.pi / 3
         grip_yaw = nut_yaw - flat * round(nut_yaw / flat)
         hand_x = np.array([math.cos(grip_yaw), math.sin(grip_yaw), 0.0])
         depth, offset = float(sample("grasp_depth", *r.grasp_depth)), float(sample("grasp_offset", *r.grasp_offset))
-        tcp = bolt + np.array([0.0, 0.0, height - depth]) - offset * hand_x
+        self._bolt_noise = np.zeros(3)
+        if self.config.start == "off_thread":  # drawn last: the engaged start's episodes stay as they were
+            noise = r.bolt_obs_noise
+            self._bolt_noise[:2] = sample("bolt_obs_noise", [-noise] * 2, [noise] * 2)
+        tcp = np.array([*nut_xy, height - depth]) - offset * hand_x
         # The hand's yaw joint turns about its own z axis, which points down: world yaw is minus the joint's.
         qpos = np.concatenate([tcp, [-grip_yaw, 0.0, 0.0]])
         physics.data.qpos[:] = physics.model.qpos0
@@ -75,7 +90,7 @@ class ScrewTask(GraspedPartTask):
         physics.data.ctrl[ids["hand_act"]] = qpos
         self._hold_target = qpos.copy()
         nut_quat = np.array([math.cos(0.5 * nut_yaw), 0.0, 0.0, math.sin(0.5 * nut_yaw)])
-        physics.data.qpos[ids["held_qpos"]:ids["held_qpos"] + 7] = np.concatenate([bolt + [0, 0, height], nut_quat])
+        physics.data.qpos[ids["held_qpos"]:ids["held_qpos"] + 7] = np.concatenate([nut_xy, [height], nut_quat])
         self._settle_grasp(physics, props.NUT_APOTHEM)
 
     def before_step(self, physics, action, random_state):
@@ -88,11 +103,29 @@ class ScrewTask(GraspedPartTask):
 
     # ------------------------------------------------------------------------------------ task state
     def goal_pos(self, physics) -> np.ndarray:
-        """Where the nut's bottom centre rests when screwed down: the top of the bolt's head."""
-        return self.fixed_pos(physics) + np.array([0.0, 0.0, props.BOLT_HEAD_HEIGHT])
+        """Where the nut's bottom centre should end: screwed down onto the bolt's head (start=engaged), or threaded
+        on, its thread's lower end 1.5 pitches below the bolt's thread's upper end (start=off_thread, Factory's
+        NutThread target)."""
+        if self.config.start == "engaged":
+            return self.fixed_pos(physics) + np.array([0.0, 0.0, props.BOLT_HEAD_HEIGHT])
+        tip = props.BOLT_HEAD_HEIGHT + props.SHANK_LENGTH  # where the bolt's thread ends
+        return self.fixed_pos(physics) + np.array([0.0, 0.0, tip - 1.5 * props.PITCH - self._thread_margin])
+
+    def observed_goal_pos(self, physics) -> np.ndarray:
+        """The goal as the policy sees it: off by the episode's bolt observation noise (`bolt_obs_noise`)."""
+        return self.goal_pos(physics) + self._bolt_noise
 
     def nut_pos(self, physics) -> np.ndarray:
         return physics.data.xpos[self._ids["held_body"]]
+
+    def thread_gap(self, physics) -> float:
+        """Height (m) of the nut's thread's lower end above the bolt's thread's upper end: below 0 they overlap."""
+        tip = self.fixed_pos(physics)[2] + props.BOLT_HEAD_HEIGHT + props.SHANK_LENGTH
+        return float(self.nut_pos(physics)[2] + self._thread_margin - tip)
+
+    def nut_yaw(self, physics) -> float:
+        xmat = physics.data.xmat[self._ids["held_body"]]
+        return math.atan2(xmat[3], xmat[0])
 
     def _up_keypoints(self, centre: np.ndarray, up: np.ndarray) -> np.ndarray:
         return centre + self._keypoints[:, None] * up
@@ -153,33 +186,48 @@ class ScrewTask(GraspedPartTask):
 
     def outcome(self, physics) -> dict:
         """How far the nut is from its goal (thread turns to go, offset from the bolt's axis, tilt) and why it
-        stopped there."""
+        stopped there: screwed down (engaged start) or threaded on and seated (off the thread); a failure (slipped in the grasp, fell off the bolt, moved far away); or, at
+        the time limit, above the bolt's tip off its axis (missed the bolt) or on it (jammed on the crest: its thread
+        not a pitch past the bolt's), tilted with the threads overlapping (cross-threaded), or on the thread, not down yet."""
         nut, goal = self.nut_pos(physics), self.goal_pos(physics)
         tilt = float(np.arccos(min(abs(physics.data.xmat[self._ids["held_body"]][8]), 1.0)))
-        failure = self.failure(physics)
-        label = "screwed down" if self.is_success(physics) else failure or "on the thread, not down yet"
-        return dict(outcome=label, turns_to_go=float((nut[2] - goal[2]) / props.PITCH),
-                    nut_offset_xy=math.hypot(*(nut[:2] - goal[:2])), nut_tilt=tilt)
+        offset = math.hypot(*(nut[:2] - goal[:2]))
+        thread_gap = self.thread_gap(physics)
+        if self.is_success(physics):
+            label = "screwed down" if self.config.start == "engaged" else "threaded on and seated"
+        elif self.failure(physics):
+            label = self.failure(physics)
+        elif thread_gap > 0 and offset > props.NUT_THREAD_RADIUS - props.BOLT_THREAD_RADIUS + props.THREAD_TUBE:
+            label = "missed the bolt"
+        elif thread_gap > -props.PITCH:  # the helices meet within a pitch of their ends, whatever the phase
+            label = "jammed on the crest"
+        elif tilt > CROSS_THREAD_TILT:
+            label = "cross-threaded"
+        else:
+            label = "on the thread, not down yet"
+        return dict(outcome=label, turns_to_go=float((nut[2] - goal[2]) / props.PITCH), nut_offset_xy=offset,
+                    nut_tilt=tilt)
 
     def get_state(self, physics) -> dict:
-        return dict(super().get_state(physics), hold_target=self._hold_target.copy())
+        return dict(super().get_state(physics), hold_target=self._hold_target.copy(), bolt_noise=self._bolt_noise.copy())
 
     def set_state(self, physics, state: dict) -> None:
         super().set_state(physics, state)
         self._hold_target = state["hold_target"].copy()
+        self._bolt_noise = state.get("bolt_noise", np.zeros(3)).copy()  # absent from older checkpoints
 
     # ---------------------------------------------------------------------------------- observations
     # The insertion task's layout with the goal (the bolt's head top) in the socket's place.
     def proprio(self, physics) -> np.ndarray:
         ids, d = self._ids, physics.data
-        tcp, goal = d.site_xpos[ids["tcp"]], self.goal_pos(physics)
+        tcp, goal = d.site_xpos[ids["tcp"]], self.observed_goal_pos(physics)
         return np.concatenate([tcp, d.xquat[ids["hand_body"]], goal, [1.0, 0, 0, 0], d.qpos[ids["finger_qpos"]],
                                goal - tcp]).astype(np.float32)
 
     def peg_state(self, physics) -> np.ndarray:
         ids, d = self._ids, physics.data
         nut = self.nut_pos(physics)
-        return np.concatenate([nut, d.xquat[ids["held_body"]], self.goal_pos(physics) - nut]).astype(np.float32)
+        return np.concatenate([nut, d.xquat[ids["held_body"]], self.observed_goal_pos(physics) - nut]).astype(np.float32)
 
     def critic_state(self, physics) -> np.ndarray:
         ids, d = self._ids, physics.data
