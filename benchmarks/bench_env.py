@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -24,7 +25,17 @@ from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
-TASKS = {"insertion": "vitac.tasks.insertion.config.InsertionConfig", "screw": "vitac.tasks.screw.config.ScrewConfig"}
+TASKS = ("insertion", "screw", "screw_offthread")  # options of the conf/task group
+
+
+def task_settings(task: str) -> dict:
+    """The task group's settings as `python -m vitac.train task=<task>` composes them, every observation on."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
+        cfg = compose("config", overrides=[f"task={task}"])
+    return dict(OmegaConf.to_container(cfg.task, resolve=True), observations=ALL)
 
 
 def _timed(owner, name: str, totals: dict, key: str):
@@ -42,7 +53,7 @@ def _timed(owner, name: str, totals: dict, key: str):
 
 
 def single_env(steps: int, task: str = "insertion") -> dict:
-    env = TaskEnv({"_target_": TASKS[task], "observations": ALL}, seed=0)
+    env = TaskEnv(task_settings(task), seed=0)
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
     for a in actions[:50]:  # warm-up
@@ -72,7 +83,7 @@ def single_env(steps: int, task: str = "insertion") -> dict:
 
 
 def vectorised(num_envs: int, workers: int, steps: int, task: str = "insertion") -> float:
-    venv = TaskVectorEnv({"_target_": TASKS[task], "observations": ALL}, num_envs=num_envs, num_workers=workers, seed=0)
+    venv = TaskVectorEnv(task_settings(task), num_envs=num_envs, num_workers=workers, seed=0)
     venv.reset(seed=0)
     actions = np.random.default_rng(0).uniform(-1, 1, (steps, num_envs, 6))
     for a in actions[:20]:
@@ -88,7 +99,7 @@ def vectorised(num_envs: int, workers: int, steps: int, task: str = "insertion")
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int_at_least(1), default=1000)
-    parser.add_argument("--tasks", nargs="+", choices=list(TASKS), default=["insertion"])
+    parser.add_argument("--tasks", nargs="+", choices=TASKS, default=["insertion"])
     parser.add_argument("--single", action="store_true", help="only the one-env figures")
     parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()
