@@ -30,10 +30,10 @@ from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
 ROOT = Path(__file__).resolve().parents[1]
-# (figure, unit, True where more is better), read from bench_env's one-environment record.
-ENV_FIGURES = [("steps_per_s", "control steps/s", True), ("step_ms", "ms", False), ("physics_ms", "ms", False),
-               ("render_ms", "ms", False), ("tactile_ms", "ms", False), ("framework_ms", "ms", False),
-               ("tactile_pad_frames_per_s", "pad-frames/s", True)]
+# The figures read from bench_env's one-environment record; rates are better higher, times (ms) lower.
+ENV_FIGURES = ("steps_per_s", "step_ms", "physics_ms", "render_ms", "tactile_ms", "framework_ms",
+               "tactile_pad_frames_per_s")
+RATES = {"steps_per_s", "tactile_pad_frames_per_s"}
 
 
 def script(tree: Path, name: str) -> Path:
@@ -59,7 +59,7 @@ def run_json(tree: Path, name: str, args: list, out: Path) -> dict:
 def env_figures(record: dict) -> dict:
     single = record["single"]
     single = single.get("insertion", single)  # `--single` records keep one entry per task
-    return {name: single[name] for name, _, _ in ENV_FIGURES}
+    return {name: single[name] for name in ENV_FIGURES}
 
 
 def policy_figures(record: dict) -> dict:
@@ -110,8 +110,7 @@ def _median(values: list) -> float:
 
 def _speedup(name: str, base: float, head: float) -> float:
     """Head's speed over base's: above 1 is faster, whatever the figure's unit."""
-    higher = {n for n, _, up in ENV_FIGURES if up}
-    return head / base if name in higher else base / head
+    return head / base if name in RATES else base / head
 
 
 def main():

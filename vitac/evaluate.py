@@ -50,8 +50,8 @@ def evaluate(ckpt: str, episodes: int, num_envs: int, num_workers: int | str, se
                            task_overrides=task_overrides or {}))
     check_flag("step_in_main", step_in_main)
     policy, cfg, settings = load_policy(ckpt)
-    settings = dict(settings, randomization=dict(settings["randomization"]), measure_force_balance=True,
-                    **(task_overrides or {}))
+    settings = dict(settings, randomization=dict(settings["randomization"]), measure_force_balance=True)
+    settings.update(task_overrides or {})  # an override may name any key, measure_force_balance included
     if randomization_scale is not None:
         settings["randomization"]["scale"] = randomization_scale
     if socket_obs_noise is not None:

@@ -28,9 +28,9 @@ def test_a_mirror_image_grasp_is_balanced_one_pad_alone_is_not_and_no_touch_is_n
 def test_episode_means_count_the_contact_phase_apart_and_resume_exactly():
     left = np.ones((3, 4, 4))
     meter = ForceBalance()
-    meter.add(left, mirror_field(left), in_contact=False)  # 0
-    meter.add(left, np.zeros_like(left), in_contact=True)  # 1
-    meter.add(np.zeros_like(left), np.zeros_like(left), in_contact=True)  # not counted
+    meter.add(step_asymmetries(left, mirror_field(left)), in_contact=False)  # 0
+    meter.add(step_asymmetries(left, np.zeros_like(left)), in_contact=True)  # 1
+    meter.add(step_asymmetries(np.zeros_like(left), np.zeros_like(left)), in_contact=True)  # not counted
     summary = meter.summary()
     assert summary["field_episode"] == pytest.approx(0.5) and summary["field_contact"] == 1.0
     assert summary["contact_steps"] == 1

@@ -46,8 +46,9 @@ class ForceBalance:
         self.sums = {f"{m}_{p}": 0.0 for m in MEASURES for p in PHASES}
         self.counts = dict.fromkeys(self.sums, 0)
 
-    def add(self, left: np.ndarray, right: np.ndarray, in_contact: bool) -> None:
-        for measure, value in step_asymmetries(left, right).items():
+    def add(self, asymmetries: dict, in_contact: bool) -> None:
+        """Count one step's `step_asymmetries`."""
+        for measure, value in asymmetries.items():
             if value is None:
                 continue
             for phase in PHASES if in_contact else ("episode",):
@@ -55,7 +56,7 @@ class ForceBalance:
                 self.counts[f"{measure}_{phase}"] += 1
 
     def summary(self) -> dict:
-        """Each mean (None where no step counted), and how many steps the contact phase had."""
+        """Each mean (None where no step counted), and how many contact-phase steps had a field to measure."""
         means = {k: (self.sums[k] / n if n else None) for k, n in self.counts.items()}
         return dict(means, contact_steps=self.counts["field_contact"])
 

@@ -129,7 +129,7 @@ def _fields(points, pad_pos, pad_rot, pad_lin, pad_ang, peg_pos, peg_rot, peg_li
             ly = peg_rot[0, 1] * wx + peg_rot[1, 1] * wy + peg_rot[2, 1] * wz
             lz = peg_rot[0, 2] * wx + peg_rot[1, 2] * wy + peg_rot[2, 2] * wz
             # Most taxels lie outside the part's bounding cylinder: no call for them. Calling for every taxel, with
-            # the face arrays as arguments, made the kernel 7x slower than this.
+            # the face arrays as arguments, made the kernel several times slower (docs/benchmarks.md).
             if lz <= 0.0 or lz >= length or lx * lx + ly * ly >= reach2:
                 depth, nx_, ny_, nz_ = 0.0, 0.0, 0.0, 0.0
             else:

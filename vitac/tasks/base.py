@@ -173,7 +173,7 @@ class GraspedPartTask(composer.Task):
         self._step += 1
         if self.config.measure_force_balance:
             touching = bool(np.any(self.contact_forces(physics)[:3]))  # the fixed part pushes on the held one
-            self.force_balance.add(self.tactile_field(physics, 0), self.tactile_field(physics, 1), touching)
+            self.force_balance.add(self.pad_asymmetries(physics), touching)
         if self.first_success_step < 0 and self.is_success(physics):
             self.first_success_step = self._step
 
@@ -292,10 +292,13 @@ class GraspedPartTask(composer.Task):
         """`balance_penalty_scale` times this step's field asymmetry between the pads (0 where neither feels
         anything), for the task's reward."""
         scale = self.config.balance_penalty_scale
-        if not scale:
-            return 0.0
-        asymmetry = step_asymmetries(self.tactile_field(physics, 0), self.tactile_field(physics, 1))["field"]
-        return scale * (asymmetry or 0.0)
+        return scale * (self.pad_asymmetries(physics)["field"] or 0.0) if scale else 0.0
+
+    def pad_asymmetries(self, physics) -> dict:
+        """This state's field and net-force asymmetries between the pads (vitac/sim/balance.py), memoised: the
+        force-balance measure and the reward's penalty both read them."""
+        return self._per_state("pad_asymmetries", physics, lambda: step_asymmetries(
+            self.tactile_field(physics, 0), self.tactile_field(physics, 1)))
 
     def contact_forces(self, physics) -> np.ndarray:
         """World-frame forces on the held part from the fixed part, the left pad and the right pad (9,): those

@@ -17,25 +17,22 @@ class OracleController:
         task: the screw task whose physics the controller reads.
         turn: how much of the full tightening step (`task.rot_action_scale` rad a control step) to turn.
         press: the z action (negative: down; -0.1 sets the hand's target 1 mm below it at the default scale).
-        align_tolerance: how far (m) the nut's axis may be off the bolt's while it presses.
+        align_tolerance: how far (m) the nut's axis may be off the bolt's before it is lowered onto the thread.
     """
 
     def __init__(self, task: ScrewTask, turn: float = 1.0, press: float = -0.1, align_tolerance: float = 0.0003):
         self.task, self.turn, self.press, self.align_tolerance = task, turn, press, align_tolerance
         self.hover = 0.0005  # how far above the bolt's top thread turn the nut's is turned to the thread's phase
-        self.aligned = False
 
     def reset(self):
-        self.aligned = False
+        pass
 
     def __call__(self, physics) -> np.ndarray:
         action = np.zeros(6)
-        task = self.task
-        if task.config.action_axes[0] and task.config.action_axes[1]:
-            action = self._off_thread(physics)
-            if action is not None:
-                return action
-            action = np.zeros(6)
+        if self.task.config.action_axes[0] and self.task.config.action_axes[1]:
+            approach = self._off_thread(physics)
+            if approach is not None:
+                return approach
             action[:2] = self._centre(physics, turning=True)
         action[2] = self.press
         # Tightening is a negative world z rotation, which the unidirectional mapping -(a + 1) / 2 reaches at a = 2 t - 1.
@@ -59,15 +56,15 @@ class OracleController:
         """Until the threads meet: centre the nut over the bolt, lower it to just above the bolt's top thread turn,
         turn it to the thread's phase there; None once it is on the thread (then screw as from an engaged start)."""
         task = self.task
-        if task.thread_gap(physics) < -0.5 * props.PITCH:
-            self.aligned = True
+        gap = task.thread_gap(physics)
+        if gap < -0.5 * props.PITCH:
             return None
         action = np.zeros(6)
         action[:2] = self._centre(physics, turning=False)
         if np.linalg.norm((task.goal_pos(physics) - task.nut_pos(physics))[:2]) > self.align_tolerance:
             return action
-        if task.thread_gap(physics) > self.hover:
-            action[2] = -min(1.0, (task.thread_gap(physics) - 0.5 * self.hover) / task.config.pos_action_scale)
+        if gap > self.hover:
+            action[2] = -min(1.0, (gap - 0.5 * self.hover) / task.config.pos_action_scale)
             return action
         height = task.nut_pos(physics)[2] - task.fixed_pos(physics)[2]
         phase = (thread_yaw(height) - task.nut_yaw(physics) + np.pi) % (2 * np.pi) - np.pi
