@@ -4,6 +4,7 @@ must be aligned and turned onto the thread; the outcome labels say how an episod
 from __future__ import annotations
 
 import collections
+import math
 
 import numpy as np
 import pytest
@@ -38,6 +39,23 @@ def test_the_nut_starts_above_the_bolts_tip_off_its_axis_with_the_bolt_observed_
     env.close()
 
 
+def test_every_start_has_the_nut_squarely_between_the_pads():
+    # Placed exactly on the flats, a pad that MuJoCo saw no contact for closed at full speed into the nut: 6 of these
+    # 30 held-out starts began with the nut 4-7 mm off the pads' centre or turned up to 40 deg in the grasp.
+    env = TaskEnv(offthread_settings(), seed=0)
+    for seed in range(2_000_000, 2_000_030):
+        env.reset(seed=seed)
+        task, physics = env.task, env.physics
+        tcp = task._ids["tcp"]
+        hand_yaw = math.atan2(physics.data.site_xmat[tcp][3], physics.data.site_xmat[tcp][0])
+        closing = np.array([-math.sin(hand_yaw), math.cos(hand_yaw)])  # the fingers close along the hand's y axis
+        off_centre = (task.nut_pos(physics) - physics.data.site_xpos[tcp])[:2] @ closing
+        # A flat faces each pad: the nut's yaw is the hand's modulo 60 deg.
+        twist = (task.nut_yaw(physics) - hand_yaw + math.pi / 6) % (math.pi / 3) - math.pi / 6
+        assert abs(off_centre) < 0.0005 and abs(math.degrees(twist)) < 2.0, (seed, off_centre, math.degrees(twist))
+    env.close()
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_pure_push_without_turning_ends_on_the_crest(seed):
     # Centred on the bolt, the nut pressed straight down at full action never passes the bolt's thread.
@@ -52,10 +70,21 @@ def test_a_pure_push_without_turning_ends_on_the_crest(seed):
     env.close()
 
 
-def test_the_oracle_aligns_the_nut_finds_the_thread_and_threads_it_on_with_each_failure_labelled():
+def oracle_outcomes(episodes: int) -> collections.Counter:
     env = TaskEnv(offthread_settings(), seed=0)
-    outcomes = collections.Counter(env.run_oracle_episode(seed=100 + k)["outcome"] for k in range(8))
+    outcomes = collections.Counter(env.run_oracle_episode(seed=2_000_000 + k)["outcome"] for k in range(episodes))
     env.close()
-    assert outcomes["threaded on and seated"] >= 5, outcomes  # 85% of 20 (docs/screw.md); the issue asks 95%
+    return outcomes
+
+
+def test_the_oracle_aligns_the_nut_finds_the_thread_and_threads_it_on_with_each_failure_labelled():
+    outcomes = oracle_outcomes(20)
+    assert outcomes["threaded on and seated"] >= 18, outcomes  # 19 of these 20 on 2026-12-05, 99 of 100 (docs/screw.md)
     assert set(outcomes) <= {"threaded on and seated", "jammed on the crest", "on the thread, not down yet",
                              "cross-threaded", "missed the bolt", "slipped in the grasp", "fell off the bolt"}
+
+
+@pytest.mark.slow
+def test_the_oracle_threads_on_at_least_95_of_100_held_out_episodes():
+    outcomes = oracle_outcomes(100)
+    assert outcomes["threaded on and seated"] >= 95, outcomes
