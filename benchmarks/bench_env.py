@@ -25,7 +25,7 @@ from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
-TASKS = ("insertion", "screw", "screw_offthread")  # options of the conf/task group
+TASKS = ("insertion", "screw", "screw_offthread", "screw_insert")  # options of the conf/task group
 
 
 def task_settings(task: str) -> dict:

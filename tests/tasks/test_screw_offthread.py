@@ -1,5 +1,6 @@
 """The screw task from off the thread (task=screw_offthread): the nut starts above the bolt's tip, not engaged, and
-must be aligned and turned onto the thread; the outcome labels say how an episode that did not get there ended."""
+must be aligned and turned onto the thread; the outcome labels say how an episode that did not get there ended.
+Insert-then-screw (task=screw_insert) is the same task with the nut started well away from the bolt."""
 
 from __future__ import annotations
 
@@ -15,9 +16,9 @@ from tests.conftest import CONF
 from vitac.envs.gym_env import TaskEnv
 
 
-def offthread_settings(**randomization) -> dict:
+def offthread_settings(task: str = "screw_offthread", **randomization) -> dict:
     with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
-        cfg = compose("config", overrides=["task=screw_offthread", "obs=privileged"])
+        cfg = compose("config", overrides=[f"task={task}", "obs=privileged"])
     settings = OmegaConf.to_container(cfg.task, resolve=True)
     settings["randomization"].update(randomization)
     return dict(settings, observations=["proprio", "peg_state"])
@@ -70,8 +71,8 @@ def test_a_pure_push_without_turning_ends_on_the_crest(seed):
     env.close()
 
 
-def oracle_outcomes(episodes: int) -> collections.Counter:
-    env = TaskEnv(offthread_settings(), seed=0)
+def oracle_outcomes(episodes: int, task: str = "screw_offthread") -> collections.Counter:
+    env = TaskEnv(offthread_settings(task), seed=0)
     outcomes = collections.Counter(env.run_oracle_episode(seed=2_000_000 + k)["outcome"] for k in range(episodes))
     env.close()
     return outcomes
@@ -84,7 +85,20 @@ def test_the_oracle_aligns_the_nut_finds_the_thread_and_threads_it_on_with_each_
                              "cross-threaded", "missed the bolt", "slipped in the grasp", "fell off the bolt"}
 
 
+def test_insert_then_screw_starts_the_nut_well_away_from_the_bolt_and_the_oracle_brings_it_over_and_threads_it_on():
+    env = TaskEnv(offthread_settings("screw_insert"), seed=0)
+    for seed in range(3):
+        env.reset(seed=seed)
+        factors = env.task.episode_factors
+        assert 0.015 <= factors["hover"] <= 0.03 and np.all(np.abs(factors["start_offset"]) <= 0.03)
+        assert env.task.thread_gap(env.physics) > 0.015
+    env.close()
+    outcomes = oracle_outcomes(6, "screw_insert")
+    assert outcomes["threaded on and seated"] >= 5, outcomes  # 6 of these 6 on 2026-12-05, 98 of 100 (docs/screw.md)
+
+
 @pytest.mark.slow
-def test_the_oracle_threads_on_at_least_95_of_100_held_out_episodes():
-    outcomes = oracle_outcomes(100)
+@pytest.mark.parametrize("task", ["screw_offthread", "screw_insert"])
+def test_the_oracle_threads_on_at_least_95_of_100_held_out_episodes(task):
+    outcomes = oracle_outcomes(100, task)
     assert outcomes["threaded on and seated"] >= 95, outcomes
