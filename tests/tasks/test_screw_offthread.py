@@ -71,6 +71,36 @@ def test_a_pure_push_without_turning_ends_on_the_crest(seed):
     env.close()
 
 
+def turn_and_press(env, seed: int) -> str:
+    """An episode of turning the tightening way while pressing lightly, never centring: its outcome's label."""
+    env.reset(seed=seed)
+    done, info = False, {}
+    while not done:
+        _, _, terminated, truncated, info = env.step(np.array([0.0, 0.0, -0.1, 0.0, 0.0, -1.0]))
+        done = terminated or truncated
+    return info["outcome"]
+
+
+@pytest.mark.parametrize(("offset", "seats"), [(0.001, True), (0.003, False)])
+def test_a_nut_offset_past_the_threads_capture_range_does_not_seat(offset, seats):
+    # The bolt's tip guides a nut 1 mm off its axis onto the thread (1.5 mm did too, 2026-12-05); 3 mm off it never is.
+    env = TaskEnv(offthread_settings(start_offset_low=[offset, 0.0], start_offset_high=[offset, 0.0], grasp_offset=[0, 0]),
+                  seed=0)
+    label = turn_and_press(env, seed=0)
+    env.close()
+    assert (label == "threaded on and seated") == seats, label
+
+
+def test_a_nut_tilted_in_the_grasp_starts_tilted_and_past_the_threads_capture_range_jams_rather_than_seats():
+    tilt = math.radians(4.0)  # the oracle seats 10 of 10 at 0.5 deg, 6 of 10 at 1 deg, none at 4 (2026-12-05)
+    env = TaskEnv(offthread_settings(grasp_tilt=[tilt, tilt]), seed=0)
+    for seed in (0, 1):
+        env.reset(seed=seed)
+        assert env.task.outcome(env.physics)["nut_tilt"] == pytest.approx(tilt, abs=math.radians(0.3))
+        assert env.run_oracle_episode(seed=seed)["outcome"] in {"jammed on the crest", "cross-threaded"}
+    env.close()
+
+
 def oracle_outcomes(episodes: int, task: str = "screw_offthread") -> collections.Counter:
     env = TaskEnv(offthread_settings(task), seed=0)
     outcomes = collections.Counter(env.run_oracle_episode(seed=2_000_000 + k)["outcome"] for k in range(episodes))

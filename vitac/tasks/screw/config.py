@@ -30,6 +30,8 @@ class Randomization(GraspRandomization):
     # Nut bottom above the fingertips (m), and its offset along the pads (across the closing axis).
     grasp_depth: list = field(default_factory=lambda: [0.001, 0.004])
     grasp_offset: list = field(default_factory=lambda: [-0.002, 0.002])
+    # start=off_thread: the nut tilted in the grasp (rad) about the pads' normal through its centre, unobserved.
+    grasp_tilt: list = field(default_factory=lambda: [0.0, 0.0])
     pad_stiffness: list = field(default_factory=lambda: [150.0, 350.0])
     pad_damping: list = field(default_factory=lambda: [0.0, 1.0])
     joint_damping_noise: list = field(default_factory=lambda: [-1.5, 1.5])
@@ -119,7 +121,8 @@ class ScrewConfig(GraspTaskConfig):
             refuse("task.randomization.bolt_obs_noise", r.bolt_obs_noise, "a number >= 0")
         if r.hover[0] < 0:
             refuse("task.randomization.hover", r.hover, "a range of heights >= 0 above the bolt's tip")
-        for key in ("start_turns", "hover", "start_yaw", "grasp_depth", "grasp_offset", "pad_stiffness", "pad_damping", "joint_damping_noise"):
+        for key in ("start_turns", "hover", "start_yaw", "grasp_depth", "grasp_offset", "grasp_tilt", "pad_stiffness",
+                    "pad_damping", "joint_damping_noise"):
             value = getattr(r, key)
             if len(value) != 2 or value[0] > value[1]:
                 refuse(f"task.randomization.{key}", value, "[low, high] with low <= high")
@@ -134,6 +137,8 @@ class ScrewConfig(GraspTaskConfig):
                    "and the pads cover the nut")
         if abs(r.grasp_offset[0]) > 0.005 or abs(r.grasp_offset[1]) > 0.005:
             refuse("task.randomization.grasp_offset", r.grasp_offset, "a range within [-0.005, 0.005] m")
+        if max(abs(r.grasp_tilt[0]), abs(r.grasp_tilt[1])) > math.radians(15):
+            refuse("task.randomization.grasp_tilt", r.grasp_tilt, "a range within [-0.26, 0.26] rad (15 deg)")
         if r.pad_stiffness[0] <= 0 or r.pad_damping[0] < 0:
             refuse("task.randomization.pad_stiffness/pad_damping", (r.pad_stiffness, r.pad_damping),
                    "stiffness > 0 and damping >= 0")

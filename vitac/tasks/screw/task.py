@@ -9,6 +9,7 @@ import mujoco
 import numpy as np
 
 from vitac.sim.gripper import PAD_LENGTH
+from vitac.sim.poses import axis_angle_matrix
 from vitac.tasks.base import GraspedPartTask
 from vitac.tasks.insertion.task import keypoint_offsets
 from vitac.tasks.screw import props
@@ -82,10 +83,11 @@ class ScrewTask(GraspedPartTask):
         grip_yaw = nut_yaw - flat * round(nut_yaw / flat)
         hand_x = np.array([math.cos(grip_yaw), math.sin(grip_yaw), 0.0])
         depth, offset = float(sample("grasp_depth", *r.grasp_depth)), float(sample("grasp_offset", *r.grasp_offset))
-        self._bolt_noise = np.zeros(3)
+        self._bolt_noise, tilt = np.zeros(3), 0.0
         if self.config.start == "off_thread":  # drawn last: the engaged start's episodes stay as they were
             noise = r.bolt_obs_noise
             self._bolt_noise[:2] = sample("bolt_obs_noise", [-noise] * 2, [noise] * 2)
+            tilt = float(sample("grasp_tilt", *r.grasp_tilt))
         tcp = np.array([*nut_xy, height - depth]) - offset * hand_x
         # The hand's yaw joint turns about its own z axis, which points down: world yaw is minus the joint's.
         qpos = np.concatenate([tcp, [-grip_yaw, 0.0, 0.0]])
@@ -95,7 +97,14 @@ class ScrewTask(GraspedPartTask):
         physics.data.ctrl[ids["hand_act"]] = qpos
         self._hold_target = qpos.copy()
         nut_quat = np.array([math.cos(0.5 * nut_yaw), 0.0, 0.0, math.sin(0.5 * nut_yaw)])
-        physics.data.qpos[ids["held_qpos"]:ids["held_qpos"] + 7] = np.concatenate([nut_xy, [height], nut_quat])
+        nut_pos = np.array([*nut_xy, height])
+        if tilt:  # about the pads' normal through the nut's centre: the flats stay on the pads
+            normal = np.array([-hand_x[1], hand_x[0], 0.0])
+            centre = np.array([0.0, 0.0, 0.5 * props.NUT_HEIGHT])
+            nut_pos = nut_pos + centre - axis_angle_matrix(tilt * normal) @ centre
+            tilt_quat = np.concatenate([[math.cos(0.5 * tilt)], math.sin(0.5 * tilt) * normal])
+            mujoco.mju_mulQuat(nut_quat, tilt_quat, nut_quat.copy())
+        physics.data.qpos[ids["held_qpos"]:ids["held_qpos"] + 7] = np.concatenate([nut_pos, nut_quat])
         squeeze = OFF_THREAD_SQUEEZE if self.config.start == "off_thread" else 0.0
         self._settle_grasp(physics, props.NUT_APOTHEM - squeeze)
 
