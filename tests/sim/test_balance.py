@@ -78,3 +78,23 @@ def test_the_balance_penalty_is_off_by_default_and_otherwise_takes_its_scale_tim
     assert unpenalized[:, 1].max() > 0.01  # and there was an asymmetry to pay for
     with pytest.raises(ValueError, match="balance_penalty_scale"):
         TaskEnv({"balance_penalty_scale": -1.0})
+
+
+def test_a_symmetric_push_on_a_tilted_peg_is_balanced_and_the_asymmetry_grows_with_a_push_into_one_pad():
+    # The socket's push on the peg, staged as a force on the held peg (tilted 0.2 rad in the hand, everything else at
+    # its range's midpoint): along its axis both pads feel mirror images; along the fingers' closing axis one pad
+    # takes the load.
+    env = TaskEnv({"_target_": "vitac.tasks.insertion.config.InsertionConfig", "observations": ["proprio"],
+                   "randomization": {"enabled": False, "peg_in_hand_tilt": [0.2, 0.2]}}, seed=0)
+    readings = []
+    for into_one_pad in (0.0, 0.3, 1.0):
+        env.reset(seed=0)
+        task, physics = env.task, env.physics
+        closing = physics.data.site_xmat[task._ids["tcp"]].reshape(3, 3)[:, 1]
+        for _ in range(30):
+            physics.data.xfrc_applied[task._ids["held_body"], :3] = [0.0, 0.0, 3.0] + into_one_pad * closing
+            env.step(np.zeros(6))
+        assert np.linalg.norm(task.tactile_field(physics, 0)) > 0.1  # the pads feel the push
+        readings.append(task.pad_asymmetries(physics)["field"])
+    env.close()
+    assert readings[0] < 0.02 and readings[0] < readings[1] < readings[2], readings
