@@ -1,9 +1,11 @@
 """The fault-injection campaign: each fault of tests/test_faults.py injected many times at random points, with a
 fast subset in the default run. docs/reliability.md records what it injects, how often, and what survives:
-`python -m pytest -m slow -s tests/test_fault_campaign.py`."""
+`python -m pytest -m slow -s tests/test_fault_campaign.py`, which records each tally in
+docs/data/fault_campaign.json and rewrites the page's table from it (tests/campaign_table.py)."""
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import shutil
@@ -14,6 +16,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests import campaign_table
 from tests.conftest import compose_config
 from tests.test_faults import JOB, SMOKE, _training_job_after
 from vitac.training import train
@@ -83,31 +86,42 @@ def test_campaign_damaged_training_checkpoints(tmp_path):
     refused, unchanged = _damage(Path(run["checkpoint"]), tmp_path, DAMAGES, seed=1)
     print(f"\n{DAMAGES} truncations refused; {DAMAGES} bit flips: {refused} refused, {unchanged} read back unchanged")
     assert refused + unchanged == DAMAGES and refused >= DAMAGES * 3 // 4
+    campaign_table.record("truncated_checkpoints", damages=DAMAGES, refused=DAMAGES)
+    campaign_table.record("bit_flips", damages=DAMAGES, refused=refused, unchanged=unchanged)
 
 
 @pytest.mark.slow
 def test_campaign_sigkills_never_lose_a_checkpoint_or_a_logged_iteration(tmp_path):
-    """SIGKILLS kills at random points of one run, each followed by `resume=auto` in the same directory: every
-    time last.ckpt loads whole and holds every iteration finished before the kill but the one in progress,
-    and the run's metrics end with every iteration logged."""
+    """SIGKILLS kills of one run, each followed by `resume=auto` in the same directory: every other kill at a random
+    moment, the rest the instant a new last.ckpt lands (an iteration's end, before or while its metrics row is
+    written). Every time last.ckpt loads whole and holds every iteration finished before the kill but the one in
+    progress, and the run's metrics end with every iteration logged once."""
     import time
 
     from vitac.run_dirs import read_metrics
 
     rng, run, done = random.Random(), tmp_path / "run", 0
-    for _ in range(SIGKILLS):
+    last = run / "checkpoints" / "last.ckpt"
+    for kill in range(SIGKILLS):
         proc = _training_job_after(done + 2, run, "resume=auto")
-        time.sleep(rng.uniform(0.0, 1.5))  # anywhere in the next iterations, mid-write included
+        if kill % 2:
+            time.sleep(rng.uniform(0.0, 1.5))  # anywhere in the next iterations, mid-write included
+        else:  # just after the next checkpoint replaces the last one
+            saved_at = last.stat().st_mtime_ns
+            while last.stat().st_mtime_ns == saved_at and proc.poll() is None:
+                time.sleep(0.002)
+            time.sleep(rng.uniform(0.0, 0.05))
         os.killpg(proc.pid, signal.SIGKILL)
         proc.communicate(timeout=60)
-        saved = load_checkpoint(run / "checkpoints" / "last.ckpt")  # whole, every time
+        saved = load_checkpoint(last)  # whole, every time
         now = saved["vitac"]["env_steps"] // (16 * 4)
         assert now >= done + 2  # the progress bar had shown done + 2 iterations saved
         done = now
     train(compose_config(JOB + ["resume=auto", f"trainer.iterations={done + 1}"], output_dir=run))
-    iterations = {int(float(r["iteration"])) for r in read_metrics(run) if r.get("iteration")}
-    print(f"\n{SIGKILLS} SIGKILLs, resumed each time: iterations 1-{done + 1} all logged")
-    assert iterations == set(range(1, done + 2))
+    iterations = [int(float(r["iteration"])) for r in read_metrics(run) if r.get("iteration")]
+    print(f"\n{SIGKILLS} SIGKILLs, resumed each time: iterations 1-{done + 1} all logged, none twice")
+    assert sorted(iterations) == list(range(1, done + 2))
+    campaign_table.record("sigkills", kills=SIGKILLS, iterations=done + 1)
 
 
 @pytest.mark.slow
@@ -138,3 +152,10 @@ def test_campaign_killed_workers_are_replaced_every_time(tmp_path):
     finally:
         venv.close()
     print(f"\n{WORKER_KILLS} worker kills replaced; kill {WORKER_KILLS + 1} stopped the run naming the process")
+    campaign_table.record("worker_kills", kills=WORKER_KILLS)
+
+
+def test_the_reliability_page_shows_the_recorded_campaign():
+    recorded = campaign_table.render(json.loads(campaign_table.REPORT.read_text()))
+    assert campaign_table.table_on_page(campaign_table.PAGE.read_text()) == recorded, \
+        "docs/reliability.md's campaign table is not the recorded one: run python -m tests.campaign_table"
