@@ -28,7 +28,7 @@ import torch
 from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco renders
 from vitac.tasks.insertion.oracle import OracleController
 from vitac.tasks.insertion.task import InsertionTask
-from vitac.utils.cli import int_at_least, output_file, refuse_bad_files
+from vitac.utils.cli import int_at_least, output_file, refuse_bad_files, tool_entry
 from vitac.utils.records import write_record
 
 OBSERVATIONS = ["proprio", "peg_state", "critic_state"]
@@ -194,4 +194,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

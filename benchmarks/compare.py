@@ -26,7 +26,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from vitac.utils.cli import int_at_least, output_file
+from vitac.utils.cli import int_at_least, output_file, tool_entry
 from vitac.utils.records import write_record
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,7 +40,7 @@ def script(tree: Path, name: str) -> Path:
     for folder in ("benchmarks", "tools"):
         if (tree / folder / name).is_file():
             return tree / folder / name
-    raise SystemExit(f"error: {tree} has no benchmarks/{name} or tools/{name}")
+    raise SystemExit(f"{tree} has no benchmarks/{name} or tools/{name}")
 
 
 def run_json(tree: Path, name: str, args: list, out: Path) -> dict:
@@ -52,7 +52,8 @@ def run_json(tree: Path, name: str, args: list, out: Path) -> dict:
     done = subprocess.run([sys.executable, str(path), *args, "--json", str(out)], cwd=tree, env=env,
                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     if done.returncode:  # the profiler's chatter on stderr is shown only when something failed
-        raise SystemExit(f"{done.stderr}\nerror: {path} failed with status {done.returncode}")
+        print(done.stderr, file=sys.stderr)
+        raise SystemExit(f"{path} failed with status {done.returncode}")
     return json.loads(out.read_text())
 
 
@@ -133,4 +134,4 @@ def main():
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

@@ -240,6 +240,11 @@ def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_an
      "error: oracle_options.foo=1 is not allowed: expected one of ['align_tolerance', 'hover', 'observed_socket'"),
     (["vitac.train", "hydra.run.dir=/tmp/" + "a" * 300], "error: hydra.run.dir=/tmp/aaaa"),  # before Hydra makes it
     (["vitac.evaluate", "hydra.run.dir=" + "b/" * 2100], "error: hydra.run.dir=b/b/b/"),
+    (["vitac.export", "/no/such.ckpt", "--out", "x.pt"], "error: ckpt='/no/such.ckpt': no such checkpoint file"),
+    (["vitac.video", "--ckpt", "/no/such.ckpt"], "error: ckpt='/no/such.ckpt': no such checkpoint file"),
+    (["vitac.runs", "outcomes", "/no/such.json"], "error: /no/such.json: cannot be read as a vitac.evaluate report"),
+    (["vitac.runs", "summary", "/no/metrics.csv"], "error: /no/metrics.csv: cannot be read as a metrics CSV"),
+    (["vitac.report", "/no/runs"], "error: /no/runs: no such directory"),
 ])
 def test_a_refused_value_prints_one_line_and_exits_2(command, message):
     import subprocess

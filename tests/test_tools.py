@@ -213,7 +213,7 @@ def test_bench_physics_refuses_a_missing_checkpoint_before_its_scripted_drivers_
     # 1,000 episodes of each scripted driver would outlast the timeout: the checkpoint is read first.
     result = subprocess.run([sys.executable, "benchmarks/bench_physics.py", "--episodes", "1000", "--ckpt",
                              str(tmp_path / "missing.ckpt")], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert result.returncode == 1 and "missing.ckpt': no such checkpoint file" in result.stderr
+    assert result.returncode == 2 and "missing.ckpt': no such checkpoint file" in result.stderr
     assert "Traceback" not in result.stderr and result.stdout == ""
 
 

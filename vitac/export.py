@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from vitac.utils.checkpoint import export_policy
-from vitac.utils.cli import output_file, refuse_bad_files
+from vitac.utils.cli import output_file, refuse_bad_files, tool_entry
 
 
 def main(argv=None) -> None:
@@ -20,11 +20,11 @@ def main(argv=None) -> None:
     parser.add_argument("ckpt", type=Path, help="a training checkpoint")
     parser.add_argument("--out", type=output_file, required=True, help="the shipped file (pretrained/<name>.pt)")
     args = parser.parse_args(argv)
-    with refuse_bad_files(parser.prog):
+    with refuse_bad_files():
         shipped = export_policy(args.ckpt, args.out)
     size = args.out.stat().st_size / 1e6
     print(f"{args.out}: {len(shipped['state_dict'])} tensors, {size:.1f} MB, {shipped['env_steps']} env steps")
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

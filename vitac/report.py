@@ -25,7 +25,7 @@ from vitac.analysis import table1
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics
 from vitac.utils.checkpoint import resolve_checkpoint
-from vitac.utils.cli import int_at_least, output_dir, stop_quietly_when_the_reader_closes
+from vitac.utils.cli import int_at_least, output_dir, stop_quietly_when_the_reader_closes, tool_entry
 from vitac.utils.records import read_whole, write_json
 
 EVAL_SEED = 2_000_000  # vitac.evaluate's default: every cell on the same held-out episodes
@@ -216,4 +216,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

@@ -14,6 +14,8 @@ from __future__ import annotations
 import sys
 from importlib import import_module
 
+from vitac.utils.cli import tool_entry
+
 COMMANDS = {"plot": "vitac.analysis.curves", "compare": "vitac.analysis.compare", "summary": "vitac.analysis.summary",
             "outcomes": "vitac.analysis.outcomes", "log-std": "vitac.analysis.log_std", "status": "vitac.analysis.status",
             "archive": "vitac.analysis.archive"}
@@ -31,4 +33,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

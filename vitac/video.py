@@ -13,7 +13,7 @@ import argparse
 
 from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco loads
 from vitac.tasks.insertion.oracle import OracleController
-from vitac.utils.cli import int_at_least, output_file, refuse_bad_files
+from vitac.utils.cli import int_at_least, output_file, refuse_bad_files, tool_entry
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS, policy_actor, record_episode, save_video
 
 
@@ -27,7 +27,7 @@ def main(argv=None):
     if args.ckpt:
         from vitac.run_config import load_policy
 
-        with refuse_bad_files(parser.prog):
+        with refuse_bad_files():
             policy, _, settings = load_policy(args.ckpt)
         env = TaskEnv(dict(settings, observations=sorted(set(settings["observations"]) | set(VIDEO_OBSERVATIONS))),
                            seed=args.seed, offscreen_size=OUTSIDE)
@@ -43,4 +43,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

@@ -15,6 +15,7 @@ import shutil
 from pathlib import Path
 
 from vitac.run_dirs import ARCHIVE_RECORD, EVALUATION, TEACHER_RECORD, completed_iterations, last_checkpoint
+from vitac.utils.cli import tool_entry
 from vitac.utils.records import write_json
 
 
@@ -49,4 +50,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

@@ -26,7 +26,7 @@ def main(argv=None):
     parser.add_argument("--episodes", type=int_at_least(1), default=3)
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    with refuse_bad_files(parser.prog):
+    with refuse_bad_files():
         policy, cfg, settings = load_policy(args.ckpt)
     policy.eval()
     if policy.head.log_std_mode != "state":  # one value per action dimension, whatever the state

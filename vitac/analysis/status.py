@@ -15,6 +15,7 @@ from pathlib import Path
 import yaml
 
 from vitac.run_dirs import run_status
+from vitac.utils.cli import tool_entry
 
 CONF = Path(__file__).resolve().parents[2] / "conf"
 
@@ -76,4 +77,4 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    tool_entry(main)()

@@ -75,13 +75,31 @@ def stop_quietly_when_the_reader_closes() -> None:
 
 
 @contextmanager
-def refuse_bad_files(prog: str):
+def refuse_bad_files():
     """Within it, a missing, corrupt or unwritable file (the OSError or ValueError that names it) ends the tool
-    with that message in one line, as argparse ends it for a bad flag, instead of a traceback."""
+    with that message (a refusal, see `tool_entry`) instead of a traceback."""
     try:
         yield
     except (OSError, ValueError) as err:
-        raise SystemExit(f"{prog}: {err}") from err
+        raise SystemExit(str(err)) from err
+
+
+def tool_entry(main):
+    """A tool's command-line entry: a refusal, raised as SystemExit(<message>) (a file it cannot read, a value it does
+    not take), prints `error: <message>` and exits with status 2, as argparse does for a bad flag; other exits and
+    errors pass unchanged. Called as a function (tests, other tools), `main` raises the SystemExit itself."""
+
+    @functools.wraps(main)
+    def run(*args, **kwargs):
+        try:
+            return main(*args, **kwargs)
+        except SystemExit as err:
+            if not isinstance(err.code, str):
+                raise
+            print(f"error: {err.code.removeprefix('error: ')}", file=sys.stderr, flush=True)
+            sys.exit(2)
+
+    return run
 
 
 # A refusal names what it refuses first: `key=value ...` (vitac.utils.checks.refuse and every check of a run's values).
