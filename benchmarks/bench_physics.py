@@ -175,7 +175,7 @@ def main():
     if args.ckpt:  # read before the scripted drivers' minutes: a missing or corrupt file stops the tool at once
         from vitac.run_config import load_policy
 
-        with refuse_bad_files(parser.prog):
+        with refuse_bad_files():
             policy, _, settings = load_policy(args.ckpt)
     rows = [drive_scripted(d, args.episodes, args.seed, options, disable_mask) for d in ("random", "oracle")]
     if args.ckpt:
