@@ -245,6 +245,11 @@ def test_keys_the_run_would_ignore_and_missing_checkpoints_are_refused_before_an
     (["vitac.runs", "outcomes", "/no/such.json"], "error: /no/such.json: cannot be read as a vitac.evaluate report"),
     (["vitac.runs", "summary", "/no/metrics.csv"], "error: /no/metrics.csv: cannot be read as a metrics CSV"),
     (["vitac.report", "/no/runs"], "error: /no/runs: no such directory"),
+    (["vitac.train", "seed=-1"], "error: seed=-1 is not allowed: expected an integer in [0, 2147483647]"),
+    (["vitac.evaluate", "ckpt=pretrained/privileged", "seed=abc"], "error: seed='abc' is not allowed"),
+    (["vitac.runs", "archive", "/no/run", "--out", "/tmp/x"], "error: /no/run: not a run directory to archive"),
+    (["vitac.runs", "status", "/no/runs"], "error: /no/runs: no such directory"),
+    (["vitac.runs", "log-std", "/no/such.ckpt"], "error: ckpt='/no/such.ckpt': no such checkpoint file"),
 ])
 def test_a_refused_value_prints_one_line_and_exits_2(command, message):
     import subprocess
