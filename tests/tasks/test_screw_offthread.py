@@ -24,6 +24,16 @@ def offthread_settings(task: str = "screw_offthread", **randomization) -> dict:
     return dict(settings, observations=["proprio", "peg_state"])
 
 
+def constant_action_episode(env, seed: int, action: list) -> dict:
+    """An episode of one action held throughout: its last step's info."""
+    env.reset(seed=seed)
+    done, info = False, {}
+    while not done:
+        _, _, terminated, truncated, info = env.step(np.array(action))
+        done = terminated or truncated
+    return info
+
+
 def test_the_nut_starts_above_the_bolts_tip_off_its_axis_with_the_bolt_observed_off_its_place():
     env = TaskEnv(offthread_settings(), seed=0)
     for seed in range(3):
@@ -62,23 +72,9 @@ def test_a_pure_push_without_turning_ends_on_the_crest(seed):
     # Centred on the bolt, the nut pressed straight down at full action never passes the bolt's thread.
     env = TaskEnv(offthread_settings(start_offset_low=[0.0, 0.0], start_offset_high=[0.0, 0.0], grasp_offset=[0, 0]),
                   seed=seed)
-    env.reset(seed=seed)
-    done, info = False, {}
-    while not done:
-        _, _, terminated, truncated, info = env.step(np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0]))
-        done = terminated or truncated
+    info = constant_action_episode(env, seed, [0.0, 0.0, -1.0, 0.0, 0.0, 0.0])
     assert info["outcome"] == "jammed on the crest" and info["turns_to_go"] > 0.5  # seated: within 0.375
     env.close()
-
-
-def turn_and_press(env, seed: int) -> str:
-    """An episode of turning the tightening way while pressing lightly, never centring: its outcome's label."""
-    env.reset(seed=seed)
-    done, info = False, {}
-    while not done:
-        _, _, terminated, truncated, info = env.step(np.array([0.0, 0.0, -0.1, 0.0, 0.0, -1.0]))
-        done = terminated or truncated
-    return info["outcome"]
 
 
 @pytest.mark.parametrize(("offset", "seats"), [(0.001, True), (0.003, False)])
@@ -86,7 +82,7 @@ def test_a_nut_offset_past_the_threads_capture_range_does_not_seat(offset, seats
     # The bolt's tip guides a nut 1 mm off its axis onto the thread (1.5 mm did too, 2026-12-05); 3 mm off it never is.
     env = TaskEnv(offthread_settings(start_offset_low=[offset, 0.0], start_offset_high=[offset, 0.0], grasp_offset=[0, 0]),
                   seed=0)
-    label = turn_and_press(env, seed=0)
+    label = constant_action_episode(env, 0, [0.0, 0.0, -0.1, 0.0, 0.0, -1.0])["outcome"]  # turn and press, never centre
     env.close()
     assert (label == "threaded on and seated") == seats, label
 

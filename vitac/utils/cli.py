@@ -96,10 +96,15 @@ def tool_entry(main):
         except SystemExit as err:
             if not isinstance(err.code, str):
                 raise
-            print(f"error: {err.code.removeprefix('error: ')}", file=sys.stderr, flush=True)
-            sys.exit(2)
+            exit_refused(err.code)
 
     return run
+
+
+def exit_refused(message: str) -> None:
+    """End the command as every refusal ends it: `error: <message>` on one line on stderr, exit status 2."""
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    sys.exit(2)
 
 
 # A refusal names what it refuses first: `key=value ...` (vitac.utils.checks.refuse and every check of a run's values).
@@ -118,8 +123,7 @@ def refusals_in_one_line(main):
         except (ValueError, FileNotFoundError) as err:
             if os.environ.get("HYDRA_FULL_ERROR") == "1" or not REFUSAL.match(str(err)):
                 raise
-            print(f"error: {err}", file=sys.stderr, flush=True)
-            sys.exit(2)
+            exit_refused(str(err))
 
     return run
 
@@ -145,5 +149,4 @@ def refuse_unusable_output_folders(argv: list[str]) -> None:
         else:
             continue
         shown = value if len(value) <= 80 else f"{value[:40]}...{value[-20:]}"
-        print(f"error: {key}={shown}: {problem}", file=sys.stderr, flush=True)
-        sys.exit(2)
+        exit_refused(f"{key}={shown}: {problem}")

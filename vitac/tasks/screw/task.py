@@ -83,11 +83,12 @@ class ScrewTask(GraspedPartTask):
         grip_yaw = nut_yaw - flat * round(nut_yaw / flat)
         hand_x = np.array([math.cos(grip_yaw), math.sin(grip_yaw), 0.0])
         depth, offset = float(sample("grasp_depth", *r.grasp_depth)), float(sample("grasp_offset", *r.grasp_offset))
-        self._bolt_noise, tilt = np.zeros(3), 0.0
+        self._bolt_noise, tilt, squeeze = np.zeros(3), 0.0, 0.0
         if self.config.start == "off_thread":  # drawn last: the engaged start's episodes stay as they were
             noise = r.bolt_obs_noise
             self._bolt_noise[:2] = sample("bolt_obs_noise", [-noise] * 2, [noise] * 2)
             tilt = float(sample("grasp_tilt", *r.grasp_tilt))
+            squeeze = OFF_THREAD_SQUEEZE
         tcp = np.array([*nut_xy, height - depth]) - offset * hand_x
         # The hand's yaw joint turns about its own z axis, which points down: world yaw is minus the joint's.
         qpos = np.concatenate([tcp, [-grip_yaw, 0.0, 0.0]])
@@ -105,7 +106,6 @@ class ScrewTask(GraspedPartTask):
             tilt_quat = np.concatenate([[math.cos(0.5 * tilt)], math.sin(0.5 * tilt) * normal])
             mujoco.mju_mulQuat(nut_quat, tilt_quat, nut_quat.copy())
         physics.data.qpos[ids["held_qpos"]:ids["held_qpos"] + 7] = np.concatenate([nut_pos, nut_quat])
-        squeeze = OFF_THREAD_SQUEEZE if self.config.start == "off_thread" else 0.0
         self._settle_grasp(physics, props.NUT_APOTHEM - squeeze)
 
     def before_step(self, physics, action, random_state):
