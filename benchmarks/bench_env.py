@@ -15,27 +15,21 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-from vitac.envs.gym_env import TaskEnv  # first: it selects headless EGL before mujoco loads
+import vitac.api
+from vitac.envs.gym_env import TaskEnv  # selects headless EGL before mujoco loads
 from vitac.envs.vector_env import TaskVectorEnv
 from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
-TASKS = ("insertion", "screw", "screw_offthread", "screw_insert")  # options of the conf/task group
 
 
 def task_settings(task: str) -> dict:
-    """The task group's settings as `python -m vitac.train task=<task>` composes them, every observation on."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
-    with initialize_config_dir(version_base="1.3", config_dir=str(Path(__file__).resolve().parents[1] / "conf")):
-        cfg = compose("config", overrides=[f"task={task}"])
-    return dict(OmegaConf.to_container(cfg.task, resolve=True), observations=ALL)
+    """The task config's settings as `python -m vitac.train task=<task>` composes them, every observation on."""
+    return vitac.api.task_settings(task, observations=ALL)
 
 
 def _timed(owner, name: str, totals: dict, key: str):
@@ -99,7 +93,7 @@ def vectorised(num_envs: int, workers: int, steps: int, task: str = "insertion")
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int_at_least(1), default=1000)
-    parser.add_argument("--tasks", nargs="+", choices=TASKS, default=["insertion"])
+    parser.add_argument("--tasks", nargs="+", choices=vitac.api.task_names(), default=["insertion"])
     parser.add_argument("--single", action="store_true", help="only the one-env figures")
     parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()

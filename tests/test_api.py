@@ -61,5 +61,25 @@ def test_a_shipped_policy_acts_as_its_evaluation_does():
     np.testing.assert_allclose(first[0], np.clip(mean, -1, 1), rtol=1e-6)
     with pytest.raises(ValueError, match=r"name='no_such_policy' is not allowed"):
         load_policy("no_such_policy")
-    with pytest.raises(ValueError, match=r"task='peg' is not allowed: expected one of \['insertion', 'screw'\]"):
+    with pytest.raises(ValueError, match=r"task='peg' is not allowed: expected one of \['insertion', 'screw', "):
         make_env("peg")
+
+
+def test_make_env_builds_every_task_config_as_training_composes_it():
+    """`make_env(task=<name>)` reads conf/task/<name>.yaml and the configs it extends, as `vitac.train task=<name>`
+    does, and a keyword changes only the keys it names."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from tests.conftest import CONF
+
+    assert vitac.api.task_names() == ["insertion", "screw", "screw_insert", "screw_offthread"]
+    for task in vitac.api.task_names():
+        with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
+            trained = OmegaConf.to_container(compose("config", overrides=[f"task={task}"]).task, resolve=True)
+        assert vitac.api.task_settings(task) == trained
+    env = make_env("screw_insert", observations=["proprio"], randomization={"hover": [0.02, 0.02]})
+    assert (env.config.start, env.config.episode_steps) == ("off_thread", 600)
+    assert env.config.randomization.hover == [0.02, 0.02]
+    assert env.config.randomization.bolt_obs_noise == 0.001  # screw_offthread's, kept beside the changed key
+    env.close()

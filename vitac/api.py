@@ -12,18 +12,40 @@
         done = terminated or truncated
     print(info["outcome"])
 
-`gymnasium.make("vitac/PegInsertion-v0")` and `gymnasium.make("vitac/NutScrew-v0")` build the same environments
-(registered on `import vitac`), with the same keyword arguments as `make_env`.
+`make_env(task=<name>)` builds any task config of `conf/task/` as `python -m vitac.train task=<name>` trains on it,
+and `gymnasium.make("vitac/PegInsertion-v0")` (or one of the other `GYM_IDS`) the same environments (registered on
+`import vitac`), with the same keyword arguments as `make_env`.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
 from vitac.utils.checks import refuse
 
-TASKS = {"insertion": "vitac.tasks.insertion.config.InsertionConfig", "screw": "vitac.tasks.screw.config.ScrewConfig"}
-GYM_IDS = {"vitac/PegInsertion-v0": "insertion", "vitac/NutScrew-v0": "screw"}
+TASK_CONFIGS = Path(__file__).resolve().parents[1] / "conf" / "task"
+GYM_IDS = {"vitac/PegInsertion-v0": "insertion", "vitac/NutScrew-v0": "screw",
+           "vitac/NutScrewOffThread-v0": "screw_offthread", "vitac/NutInsertScrew-v0": "screw_insert"}
+
+
+def task_names() -> list[str]:
+    """The task configs a run or `make_env` can name: conf/task/<name>.yaml."""
+    return sorted(path.stem for path in TASK_CONFIGS.glob("*.yaml"))
+
+
+def task_settings(task: str = "insertion", **overrides) -> dict:
+    """The settings of `conf/task/<task>.yaml` (with the configs it extends) as `python -m vitac.train task=<task>`
+    composes them, `overrides` merged in key by key (`randomization={"scale": 0.5}` changes that key only)."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    if task not in task_names():
+        refuse("task", task, f"one of {task_names()} (conf/task/<name>.yaml)")
+    with initialize_config_dir(version_base="1.3", config_dir=str(TASK_CONFIGS)):
+        settings = OmegaConf.to_container(compose(task), resolve=True)
+    return OmegaConf.to_container(OmegaConf.merge(settings, overrides))
 
 
 class Policy:
@@ -65,9 +87,10 @@ def load_policy(name: str) -> Policy:
 
 
 def make_env(task: str = "insertion", observations: list | None = None, seed: int | None = None,
-             policy: Policy | None = None, render_mode: str | None = None, **task_settings):
-    """A gymnasium environment of `task` (`insertion` or `screw`) with `observations` (default: every one the task
-    declares) and any task setting as a keyword (`peg_size=8`, `randomization={"scale": 0.5}`); or, with
+             policy: Policy | None = None, render_mode: str | None = None, **overrides):
+    """A gymnasium environment of `task` (a config of conf/task: `insertion`, `screw`, `screw_offthread`,
+    `screw_insert`) with `observations` (default: every one the task declares) and any task setting as a keyword
+    (`peg_size=8`, `randomization={"scale": 0.5}`, merged into the config's); or, with
     `policy`, the environment that policy was trained with (its task, settings and observations). `render()`
     gives the wrist camera's image (`render_mode="rgb_array"`, the only mode)."""
     from vitac.envs.gym_env import TaskEnv
@@ -75,11 +98,9 @@ def make_env(task: str = "insertion", observations: list | None = None, seed: in
     if render_mode not in (None, "rgb_array"):
         refuse("render_mode", render_mode, "None or 'rgb_array'")
     if policy is not None:
-        settings = dict(policy.settings, observations=policy.observations, **task_settings)
-    elif task not in TASKS:
-        refuse("task", task, f"one of {list(TASKS)}")
+        settings = dict(policy.settings, observations=policy.observations, **overrides)
     else:
-        settings = dict(task_settings, _target_=TASKS[task])
+        settings = task_settings(task, **overrides)
         if observations is not None:
             settings["observations"] = list(observations)
     env = TaskEnv(settings, seed=seed)

@@ -9,19 +9,13 @@ import math
 
 import numpy as np
 import pytest
-from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
 
-from tests.conftest import CONF
+from vitac.api import task_settings
 from vitac.envs.gym_env import TaskEnv
 
 
 def offthread_settings(task: str = "screw_offthread", **randomization) -> dict:
-    with initialize_config_dir(version_base="1.3", config_dir=str(CONF)):
-        cfg = compose("config", overrides=[f"task={task}", "obs=privileged"])
-    settings = OmegaConf.to_container(cfg.task, resolve=True)
-    settings["randomization"].update(randomization)
-    return dict(settings, observations=["proprio", "peg_state"])
+    return task_settings(task, randomization=randomization, observations=["proprio", "peg_state"])
 
 
 def constant_action_episode(env, seed: int, action: list) -> dict:
