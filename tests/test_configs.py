@@ -154,12 +154,14 @@ def test_presets_compose_and_name_themselves(preset):
 
 def test_table_one_budget_is_the_distillation_recipes_settings_for_450_iterations():
     """Every sensing row at preset=cpu_table1 distils with recipe/cmt_sym_dagger's settings, for 450 iterations
-    (the linear rate falls to 0 at each run's own last iteration)."""
+    (the linear rate falls to 0 at each run's own last iteration), from the default teacher."""
     recipe = compose_config(["experiment=recipe/cmt_sym_dagger"])
     for row in ("tactile", "wrist", "fusion_cmt_sym"):
         cfg = compose_config(["preset=cpu_table1", f"experiment=table1/{row}"])
-        assert cfg.algo == recipe.algo and cfg.envs == recipe.envs and cfg.teacher_ckpt == recipe.teacher_ckpt
+        assert cfg.algo == recipe.algo and cfg.envs == recipe.envs
+        assert cfg.teacher_ckpt == "pretrained/privileged_contact"  # the default teacher
         assert cfg.trainer.iterations * cfg.envs.num_envs * cfg.algo.horizon == 460_800
+    assert recipe.teacher_ckpt == "pretrained/privileged"  # the one pretrained/cmt_sym_dagger learned from
     assert compose_config(["preset=cpu_table1", "algo=ppo"]).algo.lr == compose_config(["algo=ppo"]).algo.lr
     assert recipe.algo.lr == compose_config(["algo=dagger"]).algo.lr == 3e-4  # the rate of docs/results.md's rows
     assert (recipe.algo.lr_schedule, recipe.algo.dataset_rollouts) == ("linear", 4)  # Table I's rows' settings
@@ -232,10 +234,10 @@ def test_contact_warm_start_is_the_privileged_recipe_with_contact_forces_from_th
 @pytest.mark.parametrize("row", ["tactile", "fusion_cmt_sym"])
 def test_finetuning_a_student_keeps_what_its_teachers_critic_was_trained_on(row):
     """finetune=aacd: PPO from the teacher's critic, with the teacher recipe's reward terms, rollouts and noise
-    bounds, the student's own observations, and a starting noise inside the shipped teacher's trained range."""
+    bounds, the student's own observations, and a starting noise inside the shipped teachers' trained range."""
     teacher = compose_config(["experiment=recipe/privileged_32envs"])
     cfg = compose_config([f"experiment=table1/{row}", "finetune=aacd"])
-    assert cfg.algo._target_ == "vitac.algos.ppo.PPO" and cfg.critic_ckpt == "pretrained/privileged"
+    assert cfg.algo._target_ == "vitac.algos.ppo.PPO" and cfg.critic_ckpt == cfg.teacher_ckpt  # the students' teacher
     assert cfg.obs == compose_config([f"experiment=table1/{row}"]).obs and cfg.critic == teacher.critic
     assert cfg.task == teacher.task and cfg.envs == teacher.envs  # the reward and batch the critic learned
     rollout = ("horizon", "seq_len", "minibatch_size", "mini_epochs")
@@ -244,9 +246,10 @@ def test_finetuning_a_student_keeps_what_its_teachers_critic_was_trained_on(row)
     noise = ("log_std_mode", "log_std_bound", "log_std_min", "log_std_max")
     assert {k: cfg.head[k] for k in noise} == {k: teacher.head[k] for k in noise}
     assert list(cfg.init_exclude) == ["policy.head.log_std"]
-    shipped, _, _ = load_policy(str(Path(CONF).parent / "pretrained" / "privileged"), key="teacher_ckpt")
-    trained = shipped.head._bounded_log_std(torch.zeros(1, 1))  # param mode: one bounded value per dimension
-    assert trained.min() <= cfg.head.log_std_init <= trained.max()
+    for shipped in ("privileged", "privileged_contact"):  # the first Table I's teacher and the default one
+        policy, _, _ = load_policy(str(Path(CONF).parent / "pretrained" / shipped), key="teacher_ckpt")
+        trained = policy.head._bounded_log_std(torch.zeros(1, 1))  # param mode: one bounded value per dimension
+        assert trained.min() <= cfg.head.log_std_init <= trained.max()
     recipe = compose_config(["experiment=recipe/privileged_dagger_finetune"])
     assert recipe.algo == cfg.algo and recipe.task == cfg.task and recipe.head == cfg.head
 

@@ -21,6 +21,7 @@ from vitac.run_config import build_policy_from_config, check_modalities, load_te
 from vitac.run_dirs import (
     auto_resume,
     check_output_dir,
+    check_same_teacher,
     keep_metrics,
     recover_metrics_row,
     report_run,
@@ -74,6 +75,8 @@ def train(cfg: DictConfig) -> dict:
              sum(p.numel() for p in policy.parameters()))
     ckpt_path = check_resume(resume, policy, envs_cfg["num_envs"], resolved) if resume else None
     teacher = load_teacher(cfg, settings)  # {} unless the algorithm distills
+    if teacher and ckpt_path is not None:
+        check_same_teacher(resume, cfg.teacher_ckpt)
     # Warm-start weights load now, before any environment worker starts, so a checkpoint that does not fit is
     # refused at once; the algorithm receives the loaded policy (and return statistics) once it is built.
     warm = WarmStart(policy, value_normalizer=issubclass(import_object(cfg.algo._target_), PPO))

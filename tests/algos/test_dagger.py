@@ -247,6 +247,14 @@ def test_an_aggregated_dataset_resumes_exactly(tmp_path):
     full, more = losses(tmp_path / "full"), losses(tmp_path / "more")
     assert list(more) == ["2"] and more["2"][1] == full["2"][1]  # the same rollout
     assert more["2"][0] == pytest.approx(full["2"][0], rel=1e-4)  # and the same data: CPU kernels to ~1e-6
+    # Another teacher than the one the run learned from (a changed default between sittings) would mix two teachers'
+    # labels: refused, naming the recorded one.
+    teacher = compose_config(job).teacher_ckpt
+    other = "pretrained/privileged" if teacher != "pretrained/privileged" else "pretrained/privileged_contact"
+    with pytest.raises(ValueError, match=rf"teacher_ckpt='{other}' is not allowed with resume=.*learned from another "
+                                         rf"teacher \('{teacher}'.*resume with teacher_ckpt={teacher}"):
+        train(compose_config(job + ["trainer.iterations=3", f"teacher_ckpt={other}", f"resume={tmp_path / 'part'}"],
+                             output_dir=tmp_path / "other"))
     # Only last.ckpt carries them: periodic checkpoints are for evaluation and stay small.
     from vitac.utils.checkpoint import load_checkpoint
 
