@@ -95,6 +95,25 @@ def test_report_on_a_synthetic_sweep_gives_the_known_table(tmp_path):
     assert "5 done" not in status.stdout and "7 done, 1 partial, 22 missing of 30 cells" in status.stdout
 
 
+def test_a_table_beside_an_earlier_one_pairs_each_row_with_its_earlier_self(tmp_path):
+    """`vitac.report <now> --against <before>`: each row's two results, budgets and the paired test across them."""
+    cmt = "Fusion - CMT (lambda_sym=0)"
+    fake_run(tmp_path / "before", cmt, 0, 10, successes=episodes(360))
+    fake_run(tmp_path / "before", "Tactile", 0, 10, successes=episodes(300))
+    now = fake_run(tmp_path / "now", cmt, 0, 20, budget=20, successes=episodes(380))  # 20 more, none lost
+    (now / "teacher.json").write_text(json.dumps(dict(sha256="ab12cd34" + "0" * 56, env_steps=5_000_000)))
+    rows = {r["row"]: r for r in table1.versus(table1.build([tmp_path / "now"], [0]),
+                                               table1.build([tmp_path / "before"], [0]))}
+    assert set(rows) == {cmt, "Tactile"}  # rows evaluated in neither table are left out
+    assert (rows[cmt]["now"]["mean"], rows[cmt]["before"]["mean"]) == (95.0, 90.0)
+    assert (rows[cmt]["paired"]["only_first"], rows[cmt]["paired"]["only_second"]) == (20, 0)
+    assert rows["Tactile"]["now"]["mean"] is None and rows["Tactile"]["paired"] is None
+    md = table1.versus_markdown(list(rows.values()))
+    assert (f"| {cmt} | 96.22 ± 0.98 | 90.00 (1 seed; 0.00 M, 0.1 h) | 95.00 (1 seed; 0.00 M, 0.2 h) | "
+            "ab12cd34 (5.00 M) | 20 / 0 (400), p = 1.91e-06 |") in md
+    assert "| Tactile | 91.41 ± 5.51 | 75.00 (1 seed; 0.00 M, 0.1 h) | not evaluated |  |  |" in md
+
+
 def test_the_steps_figure_trials_are_blocks_of_held_out_episodes():
     success = [1, 0, 1, 1] + [0, 0, 0, 0] + [1, 1, 1, 1] + [1, 0]
     steps = [100, 120, 140, 90, 100, 110, 120, 95]  # the successes' steps, in episode order, as vitac.evaluate lists them

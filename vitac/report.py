@@ -12,7 +12,8 @@ gated and CMT fusion with density contours (the paper's Fig. "steps"), and, wher
 experiment=screw/*, the paper's screw figure (screw.png, screw.json); and the paper's computation table beside
 ours from the policy benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by
 default); with `--qual "Naive=<ckpt>" "CMT + sym=<ckpt>"`, both pads' force fields over one held-out episode of
-each (force_fields.png, the paper's Fig. "qual").
+each (force_fields.png, the paper's Fig. "qual"); with `--against <earlier sweep dirs>`, every row beside its
+earlier self, with both budgets and the paired test across them (versus.md, versus.json).
 """
 
 from __future__ import annotations
@@ -185,8 +186,10 @@ def main(argv=None):
                         help="policies whose force fields over one held-out episode to draw (the paper's Fig. qual)")
     parser.add_argument("--computation", type=Path, default=Path("docs/data/bench_policy.json"),
                         help="the policy benchmark's record, for the paper's computation table")
+    parser.add_argument("--against", nargs="+", type=Path, default=[], metavar="DIR",
+                        help="an earlier table's sweep directories: each row beside its earlier self, paired")
     args = parser.parse_args(argv)
-    for d in args.dirs:
+    for d in args.dirs + args.against:
         if not d.is_dir():
             raise SystemExit(f"{d}: no such directory")
     table = table1.build(args.dirs, args.seeds, args.min_episodes)
@@ -210,6 +213,13 @@ def main(argv=None):
         paths.append(force_fields.figure(episodes, args.out / "force_fields.png"))
     screw_png = screw_figure(screw, args.min_episodes, args.out)
     paths += [screw_png] if screw_png else []
+    if args.against:
+        rows = table1.versus(table, table1.build(args.against, args.seeds, args.min_episodes))
+        (args.out / "versus.md").write_text(table1.versus_markdown(rows) + "\n")
+        write_json(args.out / "versus.json", dict(rows=rows, now=[str(d) for d in args.dirs],
+                                                  before=[str(d) for d in args.against]))
+        md += "\n\n" + table1.versus_markdown(rows)
+        paths += [args.out / "versus.md", args.out / "versus.json"]
     print(md)
     print(f"\nwrote {args.out / 'table1.md'}, {args.out / 'table1.tex'}, {args.out / 'table1.json'}, "
           + ", ".join(str(p) for p in paths))

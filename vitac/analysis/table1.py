@@ -179,6 +179,41 @@ def markdown(table: dict) -> str:
     return "\n".join(lines)
 
 
+def versus(now: dict, before: dict) -> list[dict]:
+    """Two tables of build() (the same seeds), row by row: each one's mean, seeds and budget, and the paired test of
+    the row against itself across them (seed by seed, on the episodes both evaluated). Rows evaluated in neither
+    are left out."""
+    earlier = {row["row"]: row for row in before["rows"]}
+    rows = []
+    for row in now["rows"]:
+        old = earlier[row["row"]]
+        if row["mean"] is None and old["mean"] is None:
+            continue
+        sides = {name: dict(mean=r["mean"], std=r["std"], seeds_counted=r["seeds_counted"], budget=_budget(r),
+                            origins=_origins(r)) for name, r in (("now", row), ("before", old))}
+        rows.append(dict(row=row["row"], paper=row["paper"], paper_std=row["paper_std"], **sides,
+                         paired=paired_test(dict(row, row="now"), dict(old, row="before"))))
+    return rows
+
+
+def versus_markdown(rows: list[dict]) -> str:
+    def side(s: dict) -> str:
+        if s["mean"] is None:
+            return "not evaluated"
+        spread = f" ± {s['std']:.2f}" if s["std"] is not None else ""
+        steps, hours = s["budget"]
+        return f"{s['mean']:.2f}{spread} ({s['seeds_counted']} seed{'s' * (s['seeds_counted'] > 1)}; {steps}, {hours} h)"
+
+    lines = ["| Method | paper (%) | before: success (%) (seeds; env steps, hours a seed) | now | now's teacher | "
+             "paired: only now / only before (episodes), exact McNemar p |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        t = r["paired"]
+        test = f"{t['only_first']} / {t['only_second']} ({t['episodes']}), p = {t['p']:.3g}" if t else ""
+        lines.append(f"| {r['row']} | {r['paper']:.2f} ± {r['paper_std']:.2f} | {side(r['before'])} | {side(r['now'])} | "
+                     f"{r['now']['origins']} | {test} |")
+    return "\n".join(lines)
+
+
 def latex(table: dict) -> str:
     mark = r"\checkmark"
     lines = [r"\begin{tabular}{lccccccc}", r"\hline",
