@@ -132,6 +132,34 @@ def test_the_symmetry_loss_reaches_the_tactile_encoders_only_with_reg_sym(reg):
         assert torch.equal(terms["loss"], terms["distill_loss"])
 
 
+def _symmetry_update(lambda_sym: float | None) -> tuple[dict, dict]:
+    """One DAgger minibatch's terms and the gradients of its whole loss, from the same weights and data; None: reg=none."""
+    reg = ["reg=none"] if lambda_sym is None else ["reg=sym", f"reg.lambda_sym={lambda_sym}"]
+    student = _policy(["obs=wrist_tactile", "fusion=cmt", "critic=none"] + reg)
+    module = DAgger(student, _SpaceFake(num_envs=2), _FunctionTeacher(), horizon=8, seq_len=4, minibatch_size=8)
+    generator = torch.Generator().manual_seed(1)
+    shapes = InsertionConfig().observation_shapes()
+    obs = {k: torch.rand(4, 2, *shapes[k], generator=generator) for k in ("proprio", "tactile_left", "tactile_right")}
+    obs["wrist"] = (255 * torch.rand(4, 2, *shapes["wrist"], generator=generator)).to(torch.uint8)
+    mb = dict(obs=obs, state=student.initial_state(2), starts=torch.zeros(4, 2), labels=torch.rand(4, 2, 6) - 0.5)
+    terms = module.minibatch_losses(mb)
+    terms["loss"].backward()
+    return terms, {name: p.grad.clone() for name, p in student.named_parameters() if p.grad is not None}
+
+
+def test_a_zero_symmetry_weight_updates_bit_for_bit_as_no_regularizer_and_the_weight_scales_its_gradient():
+    none_terms, none_grads = _symmetry_update(None)
+    zero_terms, zero_grads = _symmetry_update(0.0)
+    assert torch.equal(zero_terms["loss"], none_terms["loss"]) and zero_grads.keys() == none_grads.keys()
+    assert all(torch.equal(zero_grads[k], none_grads[k]) for k in none_grads)
+    # The term's gradient alone (the whole gradient less the imitation's) doubles with the weight.
+    half, one = ({k: g - none_grads.get(k, 0) for k, g in _symmetry_update(w)[1].items()} for w in (0.5, 1.0))
+    moved = [k for k in one if one[k].abs().sum() > 0]
+    assert any(k.startswith("encoders.tactile_left") for k in moved)
+    for k in moved:
+        torch.testing.assert_close(one[k], 2 * half[k], rtol=1e-4, atol=1e-7)
+
+
 def test_bad_dagger_values_are_refused_naming_the_key():
     envs = _SpaceFake(num_envs=2)
     for kwargs, pattern in ((dict(loss="l1"), r"algo\.loss='l1' is not allowed"),
