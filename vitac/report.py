@@ -13,7 +13,9 @@ experiment=screw/*, the paper's screw figure (screw.png, screw.json); and the pa
 ours from the policy benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by
 default); with `--qual "Naive=<ckpt>" "CMT + sym=<ckpt>"`, both pads' force fields over one held-out episode of
 each (force_fields.png, the paper's Fig. "qual"); with `--against <earlier sweep dirs>`, every row beside its
-earlier self, with both budgets and the paired test across them (versus.md, versus.json).
+earlier self, with both budgets and the paired test across them (versus.md, versus.json); and, for the wrist +
+tactile fusion runs among them, the symmetry prior's configurations (vitac/analysis/symmetry.py: success, force
+asymmetry and steps per seed, each against its lambda_sym = 0 twin; symmetry.json, symmetry.png).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import argparse
 import json
 from pathlib import Path
 
-from vitac.analysis import table1
+from vitac.analysis import symmetry, table1
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics
 from vitac.utils.checkpoint import resolve_checkpoint
@@ -213,6 +215,10 @@ def main(argv=None):
         paths.append(force_fields.figure(episodes, args.out / "force_fields.png"))
     screw_png = screw_figure(screw, args.min_episodes, args.out)
     paths += [screw_png] if screw_png else []
+    configurations = symmetry.configurations(args.dirs, args.min_episodes)
+    if configurations:
+        write_json(args.out / "symmetry.json", dict(configurations=configurations, min_episodes=args.min_episodes))
+        paths += [args.out / "symmetry.json", symmetry.figure(configurations, args.out / "symmetry.png")]
     if args.against:
         rows = table1.versus(table, table1.build(args.against, args.seeds, args.min_episodes))
         (args.out / "versus.md").write_text(table1.versus_markdown(rows) + "\n")

@@ -1,0 +1,145 @@
+"""The symmetry prior put to the test: every evaluated wrist + tactile run grouped by what the prior's claims depend
+on (fusion, `reg.lambda_sym`, `reg.mirror`, the training regime, the force-balance penalty, the teacher), with each
+configuration's success, force asymmetry and steps per seed and its paired test against the same configuration
+without the prior (`lambda_sym = 0`). `python -m vitac.report <dirs>` writes it as symmetry.json and symmetry.png
+when the directories hold such runs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import yaml
+
+from vitac.analysis.outcomes import discordant, mcnemar_exact
+from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status
+from vitac.utils.records import read_whole
+
+FUSIONS = {"NaiveFusion": "naive", "GatedFusion": "gated", "CrossModalTransformer": "cmt"}
+KEY = ("fusion", "lambda_sym", "mirror", "regime", "balance_penalty", "teacher")
+
+
+def regime(cfg: dict) -> str:
+    """How the run trained: dagger, ppo, or the fine-tune of a distilled student (aacd, kickstart, residual)."""
+    algo = cfg["algo"]["_target_"]
+    if algo.endswith("DAgger"):
+        return "dagger"
+    if (cfg.get("residual") or {}).get("_target_"):
+        return "residual"
+    if algo.endswith("KickstartPPO"):
+        return "kickstart"
+    return "aacd" if cfg.get("init_ckpt") and cfg.get("critic_ckpt") else "ppo"
+
+
+def cell(run: Path, min_episodes: int) -> dict | None:
+    """One run's configuration and its evaluation, or None if it is no evaluated wrist + tactile fusion run."""
+    cfg = read_whole(run / "config.yaml", yaml.safe_load, "a run's config.yaml")
+    modalities = set((cfg.get("obs") or {}).get("modalities", []))
+    fusion = FUSIONS.get(str((cfg.get("fusion") or {}).get("_target_", "")).rsplit(".", 1)[-1])
+    if fusion is None or not {"wrist", "tactile_left", "tactile_right"} <= modalities or not (run / EVALUATION).is_file():
+        return None
+    report = read_whole(run / EVALUATION, json.load, "a vitac.evaluate report")
+    if report["episodes"] < min_episodes:
+        return None
+    teacher = None
+    if (run / TEACHER_RECORD).is_file():
+        teacher = read_whole(run / TEACHER_RECORD, json.load, "a distilled run's teacher record")["sha256"][:8]
+    elif cfg.get("critic_ckpt"):  # a fine-tune: its teacher is the critic's
+        teacher = str(cfg["critic_ckpt"])
+    balance = [e["field_contact"] for e in report.get("force_balance") or [] if e and e.get("field_contact") is not None]
+    return dict(fusion=fusion, lambda_sym=float(cfg["reg"].get("lambda_sym", 0.0)),
+                mirror=cfg["reg"].get("mirror", "physical"), regime=regime(cfg),
+                balance_penalty=float(cfg["task"].get("balance_penalty_scale", 0.0)), teacher=teacher,
+                seed=cfg.get("seed"), run=str(run), env_steps=run_status(run)["env_steps"], eval_seed=report["seed"],
+                success=report["success_rate"], episode_success=report["episode_success"],
+                steps_to_success=report.get("steps_to_success_mean"),
+                field_asymmetry_in_contact=sum(balance) / len(balance) if balance else None)
+
+
+def configurations(dirs: list[Path], min_episodes: int = 400) -> list[dict]:
+    """Every configuration found under `dirs`, its seeds' results, and its paired test against its lambda_sym = 0
+    twin (the same configuration otherwise, on the seeds and held-out episodes both have)."""
+    cells = [c for d in dirs for config in sorted(Path(d).rglob("config.yaml")) if config.parent.name != ".hydra"
+             if (c := cell(config.parent, min_episodes))]
+    groups: dict[tuple, list[dict]] = {}
+    for c in cells:
+        groups.setdefault(tuple(c[k] for k in KEY), []).append(c)
+    results = []
+    for key, members in sorted(groups.items(), key=lambda kv: tuple(str(v) for v in kv[0])):
+        members.sort(key=lambda c: (c["seed"] is None, c["seed"]))
+        successes = [100 * c["success"] for c in members]
+        asym = [c["field_asymmetry_in_contact"] for c in members if c["field_asymmetry_in_contact"] is not None]
+        results.append(dict(zip(KEY, key, strict=True), seeds=[c["seed"] for c in members], success=successes,
+                            mean=sum(successes) / len(successes), std=_std(successes),
+                            field_asymmetry_in_contact=[c["field_asymmetry_in_contact"] for c in members],
+                            mean_field_asymmetry=sum(asym) / len(asym) if asym else None,
+                            steps_to_success=[c["steps_to_success"] for c in members],
+                            env_steps=[c["env_steps"] for c in members], runs=[c["run"] for c in members],
+                            against_lambda_0=_paired(members, groups.get(_twin(key)))))
+    return results
+
+
+def _std(values: list[float]) -> float | None:
+    if len(values) < 2:
+        return None
+    mean = sum(values) / len(values)
+    return math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
+
+
+def _twin(key: tuple) -> tuple:
+    return tuple(0.0 if name == "lambda_sym" else value for name, value in zip(KEY, key, strict=True))
+
+
+def _paired(members: list[dict], twins: list[dict] | None) -> dict | None:
+    """Exact McNemar, summed over the seeds both have (same held-out episodes): with the prior against without."""
+    if not twins or members[0]["lambda_sym"] == 0:
+        return None
+    by_seed = {c["seed"]: c for c in twins}
+    only_with = only_without = episodes = 0
+    for c in members:
+        other = by_seed.get(c["seed"])
+        if other is None or other["eval_seed"] != c["eval_seed"]:
+            continue
+        n = min(len(c["episode_success"]), len(other["episode_success"]))
+        a, b = discordant(c["episode_success"][:n], other["episode_success"][:n])
+        only_with, only_without, episodes = only_with + a, only_without + b, episodes + n
+    if not episodes:
+        return None
+    return dict(episodes=episodes, only_with_prior=only_with, only_without=only_without,
+                p=mcnemar_exact(only_with, only_without))
+
+
+def figure(results: list[dict], path: Path) -> Path:
+    """Success and field asymmetry in contact against lambda_sym, one line per configuration family, a dot a seed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ax_asym) = plt.subplots(1, 2, figsize=(9, 3.6))
+    families: dict[tuple, list[dict]] = {}
+    for r in results:
+        families.setdefault(tuple(r[k] for k in KEY if k != "lambda_sym"), []).append(r)
+    for i, (family, members) in enumerate(sorted(families.items(), key=lambda kv: str(kv[0]))):
+        members.sort(key=lambda r: r["lambda_sym"])
+        fusion, mirror, how, balance, teacher = family
+        label = f"{fusion}, {mirror} mirror, {how}" + (f", balance {balance}" if balance else "") + f", teacher {teacher}"
+        lambdas = [r["lambda_sym"] for r in members]
+        ax.plot(lambdas, [r["mean"] for r in members], "o-", color=f"C{i}", label=label)
+        for r in members:
+            ax.scatter([r["lambda_sym"]] * len(r["success"]), r["success"], color=f"C{i}", s=8, alpha=0.5)
+        asym = [(r["lambda_sym"], r["mean_field_asymmetry"]) for r in members if r["mean_field_asymmetry"] is not None]
+        if asym:
+            ax_asym.plot(*zip(*asym, strict=True), "o-", color=f"C{i}")
+    for a in (ax, ax_asym):
+        a.set_xscale("symlog", linthresh=0.01)
+        a.set_xlabel("lambda_sym")
+    ax.set(ylabel="held-out success (%)", title="success against the prior's weight (dots: seeds)")
+    ax_asym.set(ylabel="field asymmetry in contact", title="0 balanced, 1 one pad alone")
+    ax.legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
