@@ -174,12 +174,15 @@ def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
     for seed in range(3):
         fake_run(sweep, "Screw: tactile", seed, 10, successes=episodes(400 - seed))
     fake_run(sweep, "Screw: privileged", 0, 10, successes=episodes(300))
+    fake_run(sweep, "Screw: CMT + sym", 1, 10, successes=episodes(396))  # a fusion policy: drawn once it has a run
     result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(tmp_path / "out")], cwd=ROOT,
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
     data = json.loads((tmp_path / "out" / "screw.json").read_text())
-    assert data["success_percent_per_seed"] == {"Privileged": [75.0], "Wrist-camera": [], "Tactile": [100.0, 99.75, 99.5]}
-    assert data["steps_to_success_per_seed"] == {"Privileged": [100.0], "Wrist-camera": [], "Tactile": [100.0, 101.0, 102.0]}
+    assert data["success_percent_per_seed"] == {"Privileged": [75.0], "Wrist-camera": [], "Tactile": [100.0, 99.75, 99.5],
+                                                "CMT + sym": [99.0]}
+    assert data["steps_to_success_per_seed"] == {"Privileged": [100.0], "Wrist-camera": [], "Tactile": [100.0, 101.0, 102.0],
+                                                 "CMT + sym": [101.0]}
     assert (tmp_path / "out" / "screw.png").stat().st_size > 0
 
 
@@ -246,6 +249,21 @@ def test_resume_auto_continues_an_interrupted_run_in_its_directory_keeping_its_m
     assert epochs == [0, 1, 2] and (tmp_path / "csv" / "metrics_part000.csv").is_file()
     assert torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=False)["vitac"]["env_steps"] == 3 * 32
     assert train(compose_config(overrides + ["trainer.iterations=3"], output_dir=tmp_path))["skipped"]
+
+
+@pytest.mark.parametrize("task", ["screw_offthread", "screw_insert"])
+def test_the_new_screw_tasks_sweeps_train_all_five_policies_on_their_task_from_their_own_teacher(task):
+    params = yaml.safe_load((ROOT / "conf" / "sweep" / f"{task}.yaml").read_text())["hydra"]["sweeper"]["params"]
+    experiments = params["+experiment/screw"].split(",")
+    assert sorted(experiments) == sorted(p.stem for p in (ROOT / "conf" / "experiment" / "screw").glob("*.yaml"))
+    assert list(params)[0] == "seed"  # seed 0 of every policy first
+    for name in experiments:  # command-line-like parameters win over what the experiments set
+        cfg = compose_config([f"+sweep={task}", f"+experiment/screw={name}", f"task={params['task']}",
+                              f"teacher_ckpt={params['teacher_ckpt']}"])
+        assert (cfg.task.start, cfg.teacher_ckpt, cfg.preset.name) == ("off_thread", f"pretrained/{task}_privileged",
+                                                                       "cpu_screw")
+    cmt_sym = compose_config(["experiment=screw/cmt_sym"])
+    assert (cmt_sym.obs.name, cmt_sym.reg.lambda_sym, cmt_sym.row) == ("wrist_tactile", 1.0, "Screw: CMT + sym")
 
 
 @pytest.mark.parametrize("sweep", ["table1"])

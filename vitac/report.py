@@ -32,8 +32,10 @@ from vitac.utils.cli import int_at_least, output_dir, stop_quietly_when_the_read
 from vitac.utils.records import read_whole, write_json
 
 EVAL_SEED = 2_000_000  # vitac.evaluate's default: every cell on the same held-out episodes
-# The paper's screw figure (its appendix): the three policies' rows (conf/experiment/screw/*.yaml).
-SCREW_ROWS = {"Privileged": "Screw: privileged", "Wrist-camera": "Screw: wrist", "Tactile": "Screw: tactile"}
+# The paper's screw figure (its appendix): its three policies' rows and the fusion ones (conf/experiment/screw/*.yaml).
+SCREW_ROWS = {"Privileged": "Screw: privileged", "Wrist-camera": "Screw: wrist", "Tactile": "Screw: tactile",
+              "CMT": "Screw: CMT", "CMT + sym": "Screw: CMT + sym"}
+PAPER_SCREW = ("Privileged", "Wrist-camera", "Tactile")  # shown missing when not run; the fusion ones only when run
 TRIAL_EPISODES = 40  # a trial of the paper's Fig. "steps": a block of held-out episodes, one dot
 FUSION_ROWS = {"Naive": table1.NAIVE, "Gated": "Fusion - Gated (lambda_sym=0)", "CMT": "Fusion - CMT (lambda_sym=0)"}
 
@@ -118,6 +120,7 @@ def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    cells = {name: seeds for name, seeds in cells.items() if name in PAPER_SCREW or any(c["run"] for c in seeds)}
     done = {name: [c for c in seeds if c["success"] is not None] for name, seeds in cells.items()}
     results = {name: [100 * c["success"] for c in seeds] for name, seeds in done.items()}
     steps = {name: [c["steps_to_success"] for c in seeds if c["steps_to_success"] is not None]
