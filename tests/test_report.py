@@ -194,6 +194,7 @@ def test_report_draws_both_pads_force_fields_over_an_episode_for_each_policy(tmp
     episode = force_fields.record_fields(run["checkpoint"], seed=2_000_000)
     assert episode["left"].shape == episode["right"].shape == (12, 32, 32)  # the smoke preset's 12 steps
     assert episode["left"].max() > 0  # the pads press on the peg
+    assert len(episode["asymmetry"]) == 12 and all(a is None or 0 <= a <= 1 for a in episode["asymmetry"])
     sweep = fake_run(tmp_path / "sweep", "Privileged", 0, 10).parent
     result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(tmp_path / "out"), "--qual",
                              f"Naive={run['checkpoint']}", f"Other={run['checkpoint']}"], cwd=ROOT,
@@ -213,7 +214,8 @@ def test_a_negative_residual_force_field_is_drawn_visibly_not_as_zero(tmp_path):
     left[:, 4:28, 4:16] = -1.5  # the pad presses less than at the grasp over a large patch
     right = np.zeros((6, 32, 32))
     right[:, 4:28, 4:16] = 1.5
-    force_fields.figure({"policy": dict(left=left, right=right, success=True)}, tmp_path / "f.png", columns=3)
+    episode = dict(left=left, right=right, asymmetry=[1.0] * 6, success=True)
+    force_fields.figure({"policy": episode}, tmp_path / "f.png", columns=3)
     rgb = mpimg.imread(tmp_path / "f.png")[..., :3]
     third = rgb.shape[0] // 3  # three rows of panels: the left pad's fields, the right pad's, the imbalance plot
     left_row, right_row = rgb[:third, : int(0.8 * rgb.shape[1])], rgb[third:2 * third, : int(0.8 * rgb.shape[1])]
