@@ -13,7 +13,8 @@ from pathlib import Path
 
 import yaml
 
-from vitac.analysis.outcomes import discordant, mcnemar_exact
+from vitac.analysis.outcomes import mcnemar_exact
+from vitac.analysis.table1 import summed_discordant
 from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status
 from vitac.utils.records import read_whole
 
@@ -97,14 +98,7 @@ def _paired(members: list[dict], twins: list[dict] | None) -> dict | None:
     if not twins or members[0]["lambda_sym"] == 0:
         return None
     by_seed = {c["seed"]: c for c in twins}
-    only_with = only_without = episodes = 0
-    for c in members:
-        other = by_seed.get(c["seed"])
-        if other is None or other["eval_seed"] != c["eval_seed"]:
-            continue
-        n = min(len(c["episode_success"]), len(other["episode_success"]))
-        a, b = discordant(c["episode_success"][:n], other["episode_success"][:n])
-        only_with, only_without, episodes = only_with + a, only_without + b, episodes + n
+    only_with, only_without, episodes = summed_discordant((c, by_seed[c["seed"]]) for c in members if c["seed"] in by_seed)
     if not episodes:
         return None
     return dict(episodes=episodes, only_with_prior=only_with, only_without=only_without,

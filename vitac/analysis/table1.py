@@ -113,16 +113,22 @@ def build(dirs: list[Path], seeds: list[int], min_episodes: int = 400) -> dict:
                 min_episodes=min_episodes, seeds=seeds)
 
 
-def paired_test(first: dict, second: dict) -> dict | None:
-    """Exact McNemar over the episodes both rows were evaluated on, seed by seed; None without any."""
+def summed_discordant(pairs) -> tuple[int, int, int]:
+    """Episodes only the first cell inserted, only the second, and episodes compared, summed over (first, second)
+    pairs of evaluated cells; a pair not evaluated on the same episodes (evaluation seed) is skipped."""
     only_first = only_second = episodes = 0
-    for seed, a in first["seeds"].items():
-        b = second["seeds"][seed]
+    for a, b in pairs:
         if not (a.get("episode_success") and b.get("episode_success")) or a["eval_seed"] != b["eval_seed"]:
             continue
         n = min(len(a["episode_success"]), len(b["episode_success"]))
         first_only, second_only = discordant(a["episode_success"][:n], b["episode_success"][:n])
         only_first, only_second, episodes = only_first + first_only, only_second + second_only, episodes + n
+    return only_first, only_second, episodes
+
+
+def paired_test(first: dict, second: dict) -> dict | None:
+    """Exact McNemar over the episodes both rows were evaluated on, seed by seed; None without any."""
+    only_first, only_second, episodes = summed_discordant((a, second["seeds"][seed]) for seed, a in first["seeds"].items())
     if not episodes:
         return None
     return dict(first=first["row"], second=second["row"], episodes=episodes, only_first=only_first,
