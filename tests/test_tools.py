@@ -308,6 +308,23 @@ def test_paired_outcomes_compare_steps_to_succeed_on_the_episodes_both_inserted(
                         f"measured: a 0.433, b 0.533, Wilcoxon signed-rank two-sided p = {p:.3f}")
 
 
+def test_paired_pairs_on_disjoint_episodes_sum_into_one_test_and_overlapping_ones_are_refused():
+    from vitac.analysis.outcomes import mcnemar_exact, paired_summed
+
+    def report(seed, success):
+        return dict(seed=seed, episodes=len(success), randomization_scale=1.0, socket_obs_noise=0.005,
+                    randomize_only=None, final_state=[dict(outcome="inserted" if ok else "on or above the socket")
+                                                      for ok in success])
+
+    held_out = (report(2_000_000, [1, 1, 1, 0]), report(2_000_000, [0, 0, 1, 1]))  # 2 to 1
+    unseen = (report(3_000_000, [1, 1, 0]), report(3_000_000, [0, 0, 0]))  # 2 to 0
+    line = paired_summed([*held_out, *unseen], ["a", "b", "a2", "b2"])
+    assert line == ("summed over the 2 pairs (7 episodes): inserted only by the first of each pair: 4, only by the "
+                    f"second: 1, exact McNemar two-sided p = {mcnemar_exact(4, 1):.3f}")
+    with pytest.raises(SystemExit, match="share episodes"):
+        paired_summed([*held_out, *held_out], ["a", "b", "a", "b"])
+
+
 def test_runs_help_lists_every_command_and_an_unknown_command_names_the_allowed_ones(capsys):
     from vitac import runs
 

@@ -111,16 +111,36 @@ def balance_compared(first: dict, second: dict, names: tuple[str, str]) -> list[
     return lines
 
 
-def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
+def discordant_pair(first: dict, second: dict, names: tuple[str, str]) -> tuple[int, int]:
+    """Episodes only the first report's policy inserted and only the second's; refused unless the same episodes."""
     differ = [k for k in SAME_EPISODES if first.get(k) != second.get(k)]
     if differ:
         raise SystemExit(f"--paired: {names[0]} and {names[1]} are not the same episodes ({differ} differ)")
     a, b = ([e["outcome"] == "inserted" for e in final_states(r)] for r in (first, second))
-    only_first, only_second = discordant(a, b)
+    return discordant(a, b)
+
+
+def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
+    only_first, only_second = discordant_pair(first, second, names)
     line = (f"paired: inserted only by {names[0]}: {only_first}, only by {names[1]}: {only_second}, "
             f"exact McNemar two-sided p = {mcnemar_exact(only_first, only_second):.3f}")
     steps = steps_compared(first, second, names)
     return "\n".join([line, *([steps] if steps else []), *balance_compared(first, second, names)])
+
+
+def paired_summed(reports: list, names: list) -> str:
+    """One exact McNemar over several pairs (A B A' B' ...): the same two policies on disjoint episode sets."""
+    firsts, seconds = reports[0::2], reports[1::2]
+    spans = sorted((r["seed"], r["seed"] + r["episodes"]) for r in firsts)
+    if any(later[0] < earlier[1] for earlier, later in itertools.pairwise(spans)):
+        raise SystemExit(f"--paired: the pairs {names} share episodes (their seed ranges {spans} overlap)")
+    counts = [discordant_pair(a, b, (names[2 * i], names[2 * i + 1]))
+              for i, (a, b) in enumerate(zip(firsts, seconds, strict=True))]
+    only_first, only_second = sum(c[0] for c in counts), sum(c[1] for c in counts)
+    episodes = sum(r["episodes"] for r in firsts)
+    return (f"summed over the {len(firsts)} pairs ({episodes} episodes): inserted only by the first of each pair: "
+            f"{only_first}, only by the second: {only_second}, exact McNemar two-sided p = "
+            f"{mcnemar_exact(only_first, only_second):.3f}")
 
 
 POOLED_SAME = ("ckpt", "randomization_scale", "socket_obs_noise", "randomize_only", "policy")
@@ -186,7 +206,8 @@ def main(argv=None):
     stop_quietly_when_the_reader_closes()
     parser = argparse.ArgumentParser(prog="python -m vitac.runs outcomes", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("reports", type=Path, nargs="+")
-    parser.add_argument("--paired", action="store_true", help="compare two reports of the same episodes")
+    parser.add_argument("--paired", action="store_true", help="compare two reports of the same episodes; with pairs "
+                        "A B A' B' ... (one policy's first, on disjoint episodes), each pair and all summed")
     parser.add_argument("--pooled", action="store_true", help="success over reports of one checkpoint on other episodes")
     parser.add_argument("--by-factor", action="store_true",
                         help="success by randomized factor, and which factors the failures differ in (each report)")
@@ -196,8 +217,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     if args.outcome is not None and not args.by_factor:
         parser.error("--outcome goes with --by-factor")
-    if args.paired and len(args.reports) != 2:
-        parser.error("--paired takes exactly two reports")
+    if args.paired and len(args.reports) % 2:
+        parser.error("--paired takes pairs of reports: A B, or A B A' B' ... on disjoint episodes")
     reports = [read_report(path) for path in args.reports]
     by_factor = [f"\n{report_name(path)}: " + factor_table(report, args.outcome)
                  for path, report in zip(args.reports, reports, strict=True)] if args.by_factor else []
@@ -214,7 +235,11 @@ def main(argv=None):
             cells = [quartiles([e[c] for e in episodes if c in e]) for c in columns]
             print(f"| {report_name(path)} | {outcome} | {len(episodes)} | " + " | ".join(cells) + " |")
     if args.paired:
-        print("\n" + paired(*reports, names=tuple(report_name(path) for path in args.reports)))
+        names = [report_name(path) for path in args.reports]
+        for i in range(0, len(reports), 2):
+            print("\n" + paired(reports[i], reports[i + 1], names=(names[i], names[i + 1])))
+        if len(reports) > 2:
+            print("\n" + paired_summed(reports, names))
     if args.pooled:
         print("\n" + pooled(reports, [report_name(path) for path in args.reports]))
     for table in by_factor:
