@@ -224,10 +224,11 @@ def main(argv=None):
         paths += [args.out / "symmetry.json", symmetry.figure(configurations, args.out / "symmetry.png")]
     if args.against:
         rows = table1.versus(table, table1.build(args.against, args.seeds, args.min_episodes))
-        (args.out / "versus.md").write_text(table1.versus_markdown(rows) + "\n")
+        versus_md = table1.versus_markdown(rows)
+        (args.out / "versus.md").write_text(versus_md + "\n")
         write_json(args.out / "versus.json", dict(rows=rows, now=[str(d) for d in args.dirs],
                                                   before=[str(d) for d in args.against]))
-        md += "\n\n" + table1.versus_markdown(rows)
+        md += "\n\n" + versus_md
         paths += [args.out / "versus.md", args.out / "versus.json"]
     print(md)
     print(f"\nwrote {args.out / 'table1.md'}, {args.out / 'table1.tex'}, {args.out / 'table1.json'}, "

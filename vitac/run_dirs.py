@@ -109,17 +109,23 @@ def write_teacher_record(out: Path, ckpt: str | Path) -> None:
     path = resolve_checkpoint(ckpt)
     env_steps = checkpoint_env_steps(load_checkpoint(path, key="teacher_ckpt"))
     write_json(Path(out) / TEACHER_RECORD, dict(teacher_ckpt=str(ckpt), file=str(path), env_steps=env_steps,
-                                                sha256=hashlib.sha256(path.read_bytes()).hexdigest()))
+                                                sha256=teacher_sha256(ckpt)))
+
+
+def teacher_sha256(ckpt: str | Path) -> str:
+    """A teacher's identity by content: the sha256 of its file."""
+    return hashlib.sha256(resolve_checkpoint(ckpt).read_bytes()).hexdigest()
 
 
 def check_same_teacher(resume: str | Path, ckpt: str | Path) -> None:
-    """Refuse to continue a distilled run with another teacher than the one it learned from (its teacher record),
-    e.g. when the default teacher changed between a sweep's sittings: the run would mix two teachers' labels."""
-    run = Path(resume) if Path(resume).is_dir() else Path(resume).parent.parent  # <run>/checkpoints/last.ckpt
+    """Refuse to continue distilled run `resume` (a run directory) with another teacher than the one it learned
+    from (its teacher record), e.g. when the default teacher changed between a sweep's sittings: the run would mix
+    two teachers' labels."""
+    run = Path(resume)
     if not (run / TEACHER_RECORD).is_file():
         return
     record = read_whole(run / TEACHER_RECORD, json.load, "a distilled run's teacher record")
-    if hashlib.sha256(resolve_checkpoint(ckpt).read_bytes()).hexdigest() != record.get("sha256"):
+    if teacher_sha256(ckpt) != record.get("sha256"):
         raise ValueError(f"teacher_ckpt={str(ckpt)!r} is not allowed with resume={str(resume)!r}: that run learned from "
                          f"another teacher ({record.get('teacher_ckpt')!r}, {record.get('file')!r}); resume with "
                          f"teacher_ckpt={record.get('teacher_ckpt')}, or start a new run from its weights with init_ckpt=")

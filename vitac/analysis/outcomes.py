@@ -128,12 +128,17 @@ def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
     return "\n".join([line, *([steps] if steps else []), *balance_compared(first, second, names)])
 
 
+def refuse_shared_episodes(reports: list, what: str) -> None:
+    """Reports on disjoint episode sets pass; ones whose seed ranges overlap are refused, naming `what`."""
+    spans = sorted((r["seed"], r["seed"] + r["episodes"]) for r in reports)
+    if any(later[0] < earlier[1] for earlier, later in itertools.pairwise(spans)):
+        raise SystemExit(f"{what} share episodes (their seed ranges {spans} overlap)")
+
+
 def paired_summed(reports: list, names: list) -> str:
     """One exact McNemar over several pairs (A B A' B' ...): the same two policies on disjoint episode sets."""
     firsts, seconds = reports[0::2], reports[1::2]
-    spans = sorted((r["seed"], r["seed"] + r["episodes"]) for r in firsts)
-    if any(later[0] < earlier[1] for earlier, later in itertools.pairwise(spans)):
-        raise SystemExit(f"--paired: the pairs {names} share episodes (their seed ranges {spans} overlap)")
+    refuse_shared_episodes(firsts, f"--paired: the pairs {names}")
     counts = [discordant_pair(a, b, (names[2 * i], names[2 * i + 1]))
               for i, (a, b) in enumerate(zip(firsts, seconds, strict=True))]
     only_first, only_second = sum(c[0] for c in counts), sum(c[1] for c in counts)
@@ -150,9 +155,7 @@ def pooled(reports: list, names: list) -> str:
     differ = [k for k in POOLED_SAME if len({json.dumps(r.get(k)) for r in reports}) > 1]
     if differ:
         raise SystemExit(f"--pooled: {names} are not evaluations of one checkpoint under one setting ({differ} differ)")
-    spans = sorted((r["seed"], r["seed"] + r["episodes"]) for r in reports)
-    if any(later[0] < earlier[1] for earlier, later in itertools.pairwise(spans)):
-        raise SystemExit(f"--pooled: {names} share episodes (their seed ranges {spans} overlap)")
+    refuse_shared_episodes(reports, f"--pooled: {names}")
     successes = sum(round(r["success_rate"] * r["episodes"]) for r in reports)  # TacSL's success check
     episodes = sum(r["episodes"] for r in reports)
     low, high = wilson_interval(successes, episodes)

@@ -8,13 +8,12 @@ when the directories hold such runs.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import yaml
 
 from vitac.analysis.outcomes import mcnemar_exact
-from vitac.analysis.table1 import summed_discordant
+from vitac.analysis.table1 import mean_std, summed_discordant
 from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status
 from vitac.utils.records import read_whole
 
@@ -71,22 +70,15 @@ def configurations(dirs: list[Path], min_episodes: int = 400) -> list[dict]:
     for key, members in sorted(groups.items(), key=lambda kv: tuple(str(v) for v in kv[0])):
         members.sort(key=lambda c: (c["seed"] is None, c["seed"]))
         successes = [100 * c["success"] for c in members]
+        mean, std = mean_std(successes)
         asym = [c["field_asymmetry_in_contact"] for c in members if c["field_asymmetry_in_contact"] is not None]
         results.append(dict(zip(KEY, key, strict=True), seeds=[c["seed"] for c in members], success=successes,
-                            mean=sum(successes) / len(successes), std=_std(successes),
-                            field_asymmetry_in_contact=[c["field_asymmetry_in_contact"] for c in members],
-                            mean_field_asymmetry=sum(asym) / len(asym) if asym else None,
+                            mean=mean, std=std, field_asymmetry_in_contact=[c["field_asymmetry_in_contact"] for c in members],
+                            mean_field_asymmetry=mean_std(asym)[0],
                             steps_to_success=[c["steps_to_success"] for c in members],
                             env_steps=[c["env_steps"] for c in members], runs=[c["run"] for c in members],
                             against_lambda_0=_paired(members, groups.get(_twin(key)))))
     return results
-
-
-def _std(values: list[float]) -> float | None:
-    if len(values) < 2:
-        return None
-    mean = sum(values) / len(values)
-    return math.sqrt(sum((v - mean) ** 2 for v in values) / (len(values) - 1))
 
 
 def _twin(key: tuple) -> tuple:
