@@ -1,10 +1,12 @@
 """Environment speed: control steps/s of one env (all observations on) with a cost breakdown, and of
 N envs vectorised over 1 and 2 worker processes.
 
-    python benchmarks/bench_env.py [--steps 1000] [--tasks insertion screw] [--single] [--json docs/data/bench_env.json]
+    python benchmarks/bench_env.py [--steps 1000] [--tasks insertion screw] [--single] [--driver random oracle] [--json docs/data/bench_env.json]
 
 With several tasks, each gets the one-env figure and its ratio to the first task's, measured in the same run;
-the vectorised rows are the first task's (`--single`: none).
+the vectorised rows are the first task's (`--single`: none). The one env is driven by uniform random actions
+(an untrained policy), or with `--driver random oracle` also by the task's scripted oracle, whose episodes
+look like a trained policy's (the part aligned, pushed home or screwed down, the episode ended on success).
 
 Breakdown per control step: physics (the substeps), rendering (64x64 wrist frame), tactile (both
 pads' fields), framework (composer, observables, reward, gymnasium adapter: the rest). The tactile
@@ -21,6 +23,7 @@ import numpy as np
 import vitac.api
 from vitac.envs.gym_env import TaskEnv  # selects headless EGL before mujoco loads
 from vitac.envs.vector_env import TaskVectorEnv
+from vitac.tasks import import_object
 from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
@@ -46,34 +49,54 @@ def _timed(owner, name: str, totals: dict, key: str):
     setattr(owner, name, wrapper)
 
 
-def single_env(steps: int, task: str = "insertion") -> dict:
+class Driver:
+    """The one env's actions: uniform random, or the task's scripted oracle (a new one each episode)."""
+
+    def __init__(self, env: TaskEnv, kind: str, steps: int):
+        self.env, self.kind = env, kind
+        self.random_actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
+        self.new_episode()
+
+    def new_episode(self) -> None:
+        if self.kind == "oracle":
+            self.oracle = import_object(self.env.config.ORACLE)(self.env.task)
+
+    def action(self, k: int) -> np.ndarray:
+        return self.oracle(self.env.physics) if self.kind == "oracle" else self.random_actions[k]
+
+
+def single_env(steps: int, task: str = "insertion", driver: str = "random") -> dict:
     env = TaskEnv(task_settings(task), seed=0)
     env.reset(seed=0)
-    actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
-    for a in actions[:50]:  # warm-up
-        _, _, te, tr, _ = env.step(a)
+    drive = Driver(env, driver, steps)
+    for k in range(50):  # warm-up
+        _, _, te, tr, _ = env.step(drive.action(k))
         if te or tr:
             env.reset()
+            drive.new_episode()
     totals = dict(physics=0.0, render=0.0, tactile=0.0)
     # Time the pieces inside real steps: the substeps, the wrist frame, both pads' fields.
     _timed(env.task, "step_physics", totals, "physics")
     _timed(env.task, "render_wrist", totals, "render")
     _timed(env.task, "raw_tactiles", totals, "tactile")
-    resets, contacts = 0, 0
+    resets, successes, contacts = 0, 0, 0
     start = time.perf_counter()
-    for a in actions:
-        _, _, te, tr, _ = env.step(a)
+    for k in range(steps):
+        _, _, te, tr, info = env.step(drive.action(k))
         contacts += env.physics.data.ncon
         if te or tr:
+            successes += bool(info["success"])
             env.reset()
+            drive.new_episode()
             resets += 1
     total = time.perf_counter() - start
     env.close()
     per = {k: v / steps for k, v in totals.items()}
-    return dict(steps_per_s=steps / total, step_ms=total / steps * 1e3, physics_ms=per["physics"] * 1e3,
+    return dict(driver=driver, steps_per_s=steps / total, step_ms=total / steps * 1e3, physics_ms=per["physics"] * 1e3,
                 render_ms=per["render"] * 1e3, tactile_ms=per["tactile"] * 1e3,
                 framework_ms=(total / steps - sum(per.values())) * 1e3, substeps=env.task.physics_steps_per_control_step,
-                tactile_pad_frames_per_s=2.0 / per["tactile"], resets_included=resets, mean_contacts=contacts / steps)
+                tactile_pad_frames_per_s=2.0 / per["tactile"], resets_included=resets, successes=successes,
+                mean_contacts=contacts / steps)
 
 
 def vectorised(num_envs: int, workers: int, steps: int, task: str = "insertion") -> float:
@@ -95,20 +118,25 @@ def main():
     parser.add_argument("--steps", type=int_at_least(1), default=1000)
     parser.add_argument("--tasks", nargs="+", choices=vitac.api.task_names(), default=["insertion"])
     parser.add_argument("--single", action="store_true", help="only the one-env figures")
+    parser.add_argument("--driver", nargs="+", choices=["random", "oracle"], default=["random"],
+                        help="what drives the one env: random actions, the scripted oracle, or each in turn")
     parser.add_argument("--json", type=output_file, default=None)
     args = parser.parse_args()
-    singles = {}
-    for task in args.tasks:
-        single = singles[task] = single_env(args.steps, task)
-        single["vs_first_task"] = single["steps_per_s"] / singles[args.tasks[0]]["steps_per_s"]
-        print(f"{task}, one env, all observations: {single['steps_per_s']:.0f} control steps/s "
-              f"({single['step_ms']:.3f} ms, {single['vs_first_task']:.2f}x {args.tasks[0]}): physics "
-              f"{single['physics_ms']:.3f} ms ({single['substeps']} substeps, {single['mean_contacts']:.0f} contacts), "
-              f"render {single['render_ms']:.3f} ms, tactile {single['tactile_ms']:.3f} ms "
-              f"({single['tactile_pad_frames_per_s']:.0f} pad-frames/s), framework {single['framework_ms']:.3f} ms")
+    by_driver = {driver: {} for driver in args.driver}
+    for driver, singles in by_driver.items():
+        for task in args.tasks:
+            single = singles[task] = single_env(args.steps, task, driver)
+            single["vs_first_task"] = single["steps_per_s"] / singles[args.tasks[0]]["steps_per_s"]
+            print(f"{task}, one env driven by {driver} actions, all observations: {single['steps_per_s']:.0f} control steps/s "
+                  f"({single['step_ms']:.3f} ms, {single['vs_first_task']:.2f}x {args.tasks[0]}): physics "
+                  f"{single['physics_ms']:.3f} ms ({single['substeps']} substeps, {single['mean_contacts']:.0f} contacts), "
+                  f"render {single['render_ms']:.3f} ms, tactile {single['tactile_ms']:.3f} ms "
+                  f"({single['tactile_pad_frames_per_s']:.0f} pad-frames/s), framework {single['framework_ms']:.3f} ms, "
+                  f"{single['resets_included']} resets ({single['successes']} on success)")
+    singles = by_driver[args.driver[0]]
     if args.single:
         if args.json:
-            write_record(args.json, single=singles)
+            write_record(args.json, single=singles, **({"by_driver": by_driver} if len(by_driver) > 1 else {}))
         return
     single = singles[args.tasks[0]]
     rows = []

@@ -98,6 +98,17 @@ def test_bench_physics_meter_counts_every_substep_and_restores_the_methods_it_pa
     assert InsertionTask.step_physics is original_step and InsertionTask._contact_forces is original_forces
 
 
+def test_bench_env_oracle_driver_finishes_episodes_that_random_actions_do_not():
+    bench = _benchmark("bench_env")
+    oracle = bench.single_env(400, "screw_offthread", driver="oracle")
+    random = bench.single_env(400, "screw_offthread", driver="random")
+    # the oracle threads the nut on in about 140 steps, each episode ends on success; random actions end theirs
+    # by dropping or leaving the nut
+    assert oracle["driver"] == "oracle" and oracle["successes"] == oracle["resets_included"] >= 2
+    assert random["successes"] == 0
+    assert oracle["mean_contacts"] > random["mean_contacts"]  # the threads pressed together, as a trained policy does
+
+
 def test_bench_physics_applies_mujoco_options_and_refuses_unknown_ones():
     import mujoco
 
