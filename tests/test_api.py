@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from types import SimpleNamespace
 
 import gymnasium
 import numpy as np
@@ -82,4 +83,10 @@ def test_make_env_builds_every_task_config_as_training_composes_it():
     assert (env.config.start, env.config.episode_steps) == ("off_thread", 600)
     assert env.config.randomization.hover == [0.02, 0.02]
     assert env.config.randomization.bolt_obs_noise == 0.001  # screw_offthread's, kept beside the changed key
+    env.close()
+    # a policy's environment takes keywords the same way: its other randomization keys stay (the off-thread
+    # task's bolt noise is not ScrewConfig's default)
+    trained_on = SimpleNamespace(settings=vitac.api.task_settings("screw_offthread"), observations=["proprio"])
+    env = make_env(policy=trained_on, randomization={"scale": 0.5})
+    assert env.config.randomization.scale == 0.5 and env.config.randomization.bolt_obs_noise == 0.001
     env.close()

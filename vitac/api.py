@@ -45,6 +45,13 @@ def task_settings(task: str = "insertion", **overrides) -> dict:
         refuse("task", task, f"one of {task_names()} (conf/task/<name>.yaml)")
     with initialize_config_dir(version_base="1.3", config_dir=str(TASK_CONFIGS)):
         settings = OmegaConf.to_container(compose(task), resolve=True)
+    return merged(settings, overrides)
+
+
+def merged(settings: dict, overrides: dict) -> dict:
+    """`settings` with `overrides` merged in key by key, nested dicts included."""
+    from omegaconf import OmegaConf
+
     return OmegaConf.to_container(OmegaConf.merge(settings, overrides))
 
 
@@ -91,14 +98,15 @@ def make_env(task: str = "insertion", observations: list | None = None, seed: in
     """A gymnasium environment of `task` (a config of conf/task: `insertion`, `screw`, `screw_offthread`,
     `screw_insert`) with `observations` (default: every one the task declares) and any task setting as a keyword
     (`peg_size=8`, `randomization={"scale": 0.5}`, merged into the config's); or, with
-    `policy`, the environment that policy was trained with (its task, settings and observations). `render()`
+    `policy`, the environment that policy was trained with (its task, settings and observations; keywords merged
+    into its settings the same way). `render()`
     gives the wrist camera's image (`render_mode="rgb_array"`, the only mode)."""
     from vitac.envs.gym_env import TaskEnv
 
     if render_mode not in (None, "rgb_array"):
         refuse("render_mode", render_mode, "None or 'rgb_array'")
     if policy is not None:
-        settings = dict(policy.settings, observations=policy.observations, **overrides)
+        settings = dict(merged(policy.settings, overrides), observations=policy.observations)
     else:
         settings = task_settings(task, **overrides)
         if observations is not None:
