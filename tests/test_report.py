@@ -268,6 +268,19 @@ def test_the_new_screw_tasks_sweeps_train_all_five_policies_on_their_task_from_t
     assert (cmt_sym.obs.name, cmt_sym.reg.lambda_sym, cmt_sym.row) == ("wrist_tactile", 1.0, "Screw: CMT + sym")
 
 
+def test_the_symmetry_sweep_scans_the_weight_and_the_mirror_beside_table_one_cmt_cells():
+    params = yaml.safe_load((ROOT / "conf" / "sweep" / "symmetry.yaml").read_text())["hydra"]["sweeper"]["params"]
+    assert list(params) == ["seed", "+experiment/symmetry"]
+    scanned = set()
+    for path in (ROOT / "conf" / "experiment" / "symmetry").glob("*.yaml"):
+        cfg = compose_config(["+sweep=symmetry", f"+experiment/symmetry={path.stem}"])
+        assert (cfg.obs.name, cfg.fusion._target_, cfg.preset.name, cfg.teacher_ckpt) == (
+            "wrist_tactile", "vitac.models.fusion.CrossModalTransformer", "cpu_table1", "pretrained/privileged_contact")
+        scanned.add((cfg.reg.lambda_sym, cfg.reg.mirror))
+    # the weights 0 and 1 with the physical mirror are Table I's CMT and CMT + sym cells
+    assert scanned == {(0.01, "physical"), (0.1, "physical"), (1.0, "image")}
+
+
 @pytest.mark.parametrize("sweep", ["table1"])
 def test_the_table_sweep_runs_seed_0_of_every_row_first(sweep):
     config = yaml.safe_load((ROOT / "conf" / "sweep" / f"{sweep}.yaml").read_text())
