@@ -7,6 +7,7 @@ import hashlib
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
 from vitac.run_config import load_policy
@@ -49,11 +50,19 @@ def test_the_shipped_student_is_the_distilled_wrist_tactile_cmt_sym_policy():
     assert mean.shape == (1, 2, 6) and torch.isfinite(mean).all()
 
 
+@pytest.mark.parametrize("name,cell,lambda_sym", [("cmt_contact", "fusion_cmt_seed0", 0.0),
+                                                   ("cmt_sym_contact", "fusion_cmt_sym_seed0", 1.0)])
+def test_the_contact_teachers_cmt_students_are_their_archived_cells(name, cell, lambda_sym):
+    policy, _, _ = load_policy(f"pretrained/{name}")
+    assert type(policy.fusion).__name__ == "CrossModalTransformer" and policy.regularizer.lambda_sym == lambda_sym
+    assert load_checkpoint(f"pretrained/{name}")["env_steps"] == 460_800  # Table I's budget, 450 x 1,024
+    record = json.loads(Path(f"docs/data/results/contact_teacher/{cell}/teacher.json").read_text())
+    assert record["sha256"] == hashlib.sha256(Path("pretrained/privileged_contact.pt").read_bytes()).hexdigest()
+
+
 def test_a_teacher_whose_weights_do_not_fit_its_config_is_refused_naming_the_key(tmp_path):
     """A checkpoint is rebuilt from its own stored config, so a teacher of another architecture than the student
     is fine; weights that do not fit that config (a hand-edited file) are refused before anything is simulated."""
-    import pytest
-
     shipped = torch.load("pretrained/privileged.pt", weights_only=True)
     shipped["vitac_config"]["head"]["hidden"] = 128  # the LSTM's weights are 256 wide
     torch.save(shipped, tmp_path / "edited.pt")

@@ -123,7 +123,8 @@ def figure(results: list[dict], path: Path) -> Path:
         a.set_xscale("symlog", linthresh=0.01)
         a.set_xlabel("lambda_sym")
     ax.set(ylabel="held-out success (%)", title="success against the prior's weight (dots: seeds)")
-    ax_asym.set(ylabel="field asymmetry in contact", title="0 balanced, 1 one pad alone")
+    # the measure's whole range: a difference in the third decimal must not fill the panel
+    ax_asym.set(ylabel="field asymmetry in contact", title="0 balanced, 1 one pad alone", ylim=(0, 1))
     ax.legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
