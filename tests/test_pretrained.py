@@ -9,7 +9,10 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
+from omegaconf import OmegaConf
 
+from tests.conftest import compose_config
 from vitac.run_config import load_policy
 from vitac.tasks import make_task_config
 from vitac.utils.checkpoint import load_checkpoint
@@ -48,6 +51,24 @@ def test_the_shipped_student_is_the_distilled_wrist_tactile_cmt_sym_policy():
     with torch.no_grad():
         mean, _, _, _ = policy(obs, policy.initial_state(2), torch.ones(1, 2, dtype=torch.bool))
     assert mean.shape == (1, 2, 6) and torch.isfinite(mean).all()
+
+
+def test_the_97_percent_teacher_is_a_residual_head_on_the_frozen_contact_teacher():
+    tuned = load_checkpoint("pretrained/privileged_contact_residual")["state_dict"]
+    base = load_checkpoint("pretrained/privileged_contact")["state_dict"]
+    added = set(tuned) - set(base)
+    assert added and all(k.startswith("policy.residual.") for k in added) and not set(base) - set(tuned)
+    moved = [k for k in base if not torch.equal(tuned[k], base[k])]  # the actor and its input statistics stay frozen
+    assert moved and all(k.startswith(("policy.critic", "value_normalizer")) for k in moved)
+    archive = Path("docs/data/results/teacher_contact_residual")
+    inserted = [round(json.loads(p.read_text())["success_rate"] * 400)
+                for p in (archive / "checkpoints" / "last.eval.json", archive / "unseen_seeds_eval.json")]
+    assert inserted == [391, 393]  # at least 97% of both sets
+    # its recipe composes the archived run's configuration
+    recipe = OmegaConf.to_container(compose_config(["experiment=recipe/privileged_contact_residual"]), resolve=True)
+    run = yaml.safe_load((archive / "config.yaml").read_text())
+    for key in ("task", "obs", "head", "residual", "critic", "algo", "envs", "trainer", "init_ckpt", "critic_ckpt"):
+        assert recipe[key] == run[key], key
 
 
 @pytest.mark.parametrize("name,cell,lambda_sym", [("cmt_contact", "fusion_cmt_seed0", 0.0),
