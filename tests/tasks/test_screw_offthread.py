@@ -122,3 +122,27 @@ def test_insert_then_screw_starts_the_nut_well_away_from_the_bolt_and_the_oracle
 def test_the_oracle_threads_on_at_least_95_of_100_held_out_episodes(task):
     outcomes = oracle_outcomes(100, task)
     assert outcomes["threaded on and seated"] >= 95, outcomes
+
+
+def episode_return(env, seed: int, action: list) -> tuple[float, dict]:
+    env.reset(seed=seed)
+    total, done, info = 0.0, False, {}
+    while not done:
+        _, reward, terminated, truncated, info = env.step(np.array(action))
+        total, done = total + reward, terminated or truncated
+    return total, info
+
+
+@pytest.mark.parametrize("charged", [False, True])
+def test_knocking_the_nut_off_the_bolt_pays_only_without_the_failure_charge(charged):
+    """The reward is below 0 at every step, so an episode a failure ends early collects less of it than one held
+    still to the time limit, unless the failure is charged with its reward for every step left (the off-thread
+    default): PPO's first off-thread policy learned exactly that, knocking the nut off the bolt in every episode."""
+    settings = offthread_settings()
+    settings["charge_failures_to_time_limit"] = charged
+    env = TaskEnv(settings, seed=0)
+    held, held_info = episode_return(env, 0, [0, 0, 0, 0, 0, 0])
+    knocked, knocked_info = episode_return(env, 0, [1, 0, -1, 0, 0, 0])  # sideways and down, past the bolt
+    env.close()
+    assert held_info["outcome"] == "missed the bolt" and knocked_info["outcome"] == "fell off the bolt"
+    assert (knocked < held) == charged

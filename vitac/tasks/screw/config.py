@@ -74,6 +74,9 @@ class ScrewConfig(GraspTaskConfig):
     num_keypoints: int = 4
     keypoint_reward_scale: float = 1.0
     action_gradient_penalty_scale: float = 0.0
+    # A failure that ends the episode also earns its step's reward once for every step left to the time limit, as
+    # if the nut had stayed where it failed: with a reward below 0 at every step, ending early must not pay.
+    charge_failures_to_time_limit: bool = False
     randomization: Randomization = field(default_factory=Randomization)
 
     def task_observation_specs(self) -> dict[str, ObservationSpec]:
@@ -89,6 +92,7 @@ class ScrewConfig(GraspTaskConfig):
     def validate(self) -> None:
         super().validate()
         check_flag("task.unidirectional_rotation", self.unidirectional_rotation)
+        check_flag("task.charge_failures_to_time_limit", self.charge_failures_to_time_limit)
         axes = self.action_axes
         if len(axes) != 6 or any(a not in (0, 1) for a in axes) or not any(axes):
             refuse("task.action_axes", axes, "6 flags of 0 or 1 (x, y, z, roll, pitch, yaw), at least one 1")

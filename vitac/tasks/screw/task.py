@@ -166,8 +166,11 @@ class ScrewTask(GraspedPartTask):
     def get_reward(self, physics):
         cfg = self.config
         nut_to_goal, fingers_to_nut = self.keypoint_distances(physics)
-        return (-cfg.keypoint_reward_scale * (nut_to_goal + fingers_to_nut)
-                - cfg.action_gradient_penalty_scale * self._action_delta - self.balance_penalty(physics))
+        reward = (-cfg.keypoint_reward_scale * (nut_to_goal + fingers_to_nut)
+                  - cfg.action_gradient_penalty_scale * self._action_delta - self.balance_penalty(physics))
+        if cfg.charge_failures_to_time_limit and self.failure(physics) is not None:
+            reward *= 1 + max(cfg.episode_steps - self.step_count, 0)
+        return reward
 
     def is_success(self, physics) -> bool:
         return float(np.linalg.norm(self.nut_pos(physics) - self.goal_pos(physics))) < self.config.success_distance
