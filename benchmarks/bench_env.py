@@ -27,6 +27,7 @@ from vitac.tasks import import_object
 from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
+WARMUP_STEPS = 50
 ALL = ["proprio", "peg_state", "contact_forces", "wrist", "tactile_left", "tactile_right", "critic_state"]
 
 
@@ -54,7 +55,8 @@ class Driver:
 
     def __init__(self, env: TaskEnv, kind: str, steps: int):
         self.env, self.kind = env, kind
-        self.random_actions = np.random.default_rng(0).uniform(-1, 1, (steps, 6))
+        # the warm-up replays the first of the timed steps' actions
+        self.random_actions = np.random.default_rng(0).uniform(-1, 1, (max(steps, WARMUP_STEPS), 6))
         self.new_episode()
 
     def new_episode(self) -> None:
@@ -69,7 +71,7 @@ def single_env(steps: int, task: str = "insertion", driver: str = "random") -> d
     env = TaskEnv(task_settings(task), seed=0)
     env.reset(seed=0)
     drive = Driver(env, driver, steps)
-    for k in range(50):  # warm-up
+    for k in range(WARMUP_STEPS):
         _, _, te, tr, _ = env.step(drive.action(k))
         if te or tr:
             env.reset()
