@@ -23,7 +23,6 @@ import numpy as np
 import vitac.api
 from vitac.envs.gym_env import TaskEnv  # selects headless EGL before mujoco loads
 from vitac.envs.vector_env import TaskVectorEnv
-from vitac.tasks import import_object
 from vitac.utils.cli import int_at_least, output_file
 from vitac.utils.records import write_record
 
@@ -61,7 +60,7 @@ class Driver:
 
     def new_episode(self) -> None:
         if self.kind == "oracle":
-            self.oracle = import_object(self.env.config.ORACLE)(self.env.task)
+            self.oracle = self.env.new_oracle()
 
     def action(self, k: int) -> np.ndarray:
         return self.oracle(self.env.physics) if self.kind == "oracle" else self.random_actions[k]

@@ -114,12 +114,16 @@ class TaskEnv(gym.Env):
     def render(self):
         return self._env.task.render_wrist(self._env.physics)
 
+    def new_oracle(self, **oracle_options):
+        """The task's scripted controller for one episode: `oracle(physics)` -> action."""
+        from vitac.tasks import import_object
+
+        return import_object(self.config.ORACLE)(self.task, **oracle_options)
+
     def run_oracle_episode(self, seed: int, **oracle_options) -> dict:
         """One episode driven by the task's scripted oracle (it reads the true state; insertion's takes
         `observed_socket=True` to aim at the noisy socket position the actor sees)."""
-        from vitac.tasks import import_object
-
-        oracle = import_object(self.config.ORACLE)(self.task, **oracle_options)
+        oracle = self.new_oracle(**oracle_options)
         self.reset(seed=seed)
         done = False
         while not done:
