@@ -28,7 +28,7 @@ from vitac.run_dirs import (
     write_teacher_record,
 )
 from vitac.tasks import import_object, make_task_config
-from vitac.utils.checkpoint import PortableCheckpointIO
+from vitac.utils.checkpoint import PortableCheckpointIO, resolve_checkpoint
 from vitac.utils.instantiate import instantiate
 from vitac.utils.quiet import OfflineWandbLogger
 from vitac.viz import OUTSIDE, VIDEO_OBSERVATIONS
@@ -83,7 +83,8 @@ def train(cfg: DictConfig) -> dict:
     if cfg.init_ckpt:
         load_weights(warm, cfg.init_ckpt, list(cfg.init_exclude))
     if cfg.critic_ckpt:
-        load_critic(warm, cfg.critic_ckpt)
+        files = [resolve_checkpoint(p).resolve() for p in (cfg.init_ckpt, cfg.critic_ckpt) if p]
+        load_critic(warm, cfg.critic_ckpt, same_actor=len(files) == 2 and files[0] == files[1])
     OmegaConf.save(cfg, out / "config.yaml", resolve=True)
     if teacher:
         write_teacher_record(out, cfg.teacher_ckpt)

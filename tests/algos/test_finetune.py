@@ -103,6 +103,27 @@ def test_a_critic_reading_the_actors_memory_starts_as_the_teachers_and_moves_no_
     assert all(p.grad is None for p in actor)  # and the critic's loss never reaches the actor
 
 
+@pytest.mark.parametrize("same_actor", [False, True])
+def test_a_critic_that_read_another_actors_memory_starts_from_its_state_columns_only(same_actor):
+    """The 97% teacher's critic read its own LSTM's features; a student's critic starts from it with zero weights on
+    the student's (equally wide, differently meaning) features, unless the actor is the checkpoint's own."""
+    from vitac.algos.weights import CRITIC_INPUT, load_critic
+    from vitac.models.normalizer import RunningNormalizer
+    from vitac.run_config import build_policy_from_config, task_settings
+    from vitac.tasks.insertion.config import InsertionConfig
+
+    cfg = compose_config(["experiment=table1/privileged_contact", "critic=state_memory"])
+    holder = torch.nn.Module()
+    holder.policy = build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
+    holder.value_normalizer = RunningNormalizer((), clip=float("inf"))
+    load_critic(holder, "pretrained/privileged_contact_residual", same_actor=same_actor)
+    saved = _weights("pretrained/privileged_contact_residual.pt", CRITIC_INPUT)[CRITIC_INPUT]
+    loaded, state = holder.policy.critic.mlp[0].weight, holder.policy.critic.state_dim
+    assert loaded.shape == saved.shape and saved[:, state:].abs().sum() > 0
+    torch.testing.assert_close(loaded[:, :state], saved[:, :state])
+    assert torch.equal(loaded[:, state:], saved[:, state:]) if same_actor else not loaded[:, state:].any()
+
+
 def test_a_residual_policy_starts_as_its_student_bit_for_bit_and_trains_only_its_head_and_critic(student, tmp_path):
     from vitac.run_config import load_policy
     from vitac.training import train

@@ -104,20 +104,34 @@ def _widen_feature_input(policy, weight: torch.Tensor, old_modalities: list, pat
 
 
 CRITIC_INPUT = "policy.critic.mlp.0.weight"  # the critic's first layer: critic state, then the actor's memory
+MEMORY_WIDTH = "policy.head.lstm.weight_hh_l0"  # (4 x hidden, hidden): the actor's memory is `hidden` wide
 
 
-def load_critic(module, path: str) -> None:
-    """TacSL's AACD: start the asymmetric critic (and its input normalizer) from another run's checkpoint."""
-    if module.policy.critic is None:
+def load_critic(module, path: str, same_actor: bool = False) -> None:
+    """TacSL's AACD: start the asymmetric critic (and its input normalizer) from another run's checkpoint.
+
+    A critic reads the privileged state and, with `reads_actor_memory`, its actor's recurrent features. Columns
+    for features the checkpoint's critic did not read start at zero; those it read of its own actor are kept only
+    when this run's actor is that one (`same_actor`, e.g. init_ckpt is the same file), since another actor's
+    features mean something else: the critic starts as the checkpoint's reading of the state alone.
+    """
+    critic = module.policy.critic
+    if critic is None:
         raise ValueError(f"critic_ckpt={path!r} needs an asymmetric critic: set critic=state")
-    state = load_checkpoint(path, key="critic_ckpt")["state_dict"]
+    checkpoint = load_checkpoint(path, key="critic_ckpt")
+    state = checkpoint["state_dict"]
     prefixes = ("policy.critic.", "policy.critic_normalizer.", "value_normalizer.")
     picked = {k: v for k, v in state.items() if k.startswith(prefixes)}
     if not picked:
         raise ValueError(f"critic_ckpt={path!r} holds no critic weights")
-    width = module.policy.critic.mlp[0].in_features
+    width = critic.mlp[0].in_features
     saved = picked.get(CRITIC_INPUT)
-    if saved is not None and saved.shape[1] < width and module.policy.critic.reads_actor_memory:
+    if saved is not None and checkpoint["vitac_config"].get("critic", {}).get("reads_actor_memory"):
+        own_state = saved.shape[1] - state[MEMORY_WIDTH].shape[1]
+        if not (same_actor and saved.shape[1] == width) and own_state == critic.state_dim:
+            saved = picked[CRITIC_INPUT] = saved[:, :own_state]
+            log.info("critic_ckpt: its critic read another actor's memory; those weights are left out")
+    if saved is not None and saved.shape[1] < width and critic.reads_actor_memory:
         # A critic that reads the actor's memory, from one that did not: the memory enters with zero weights, so
         # the critic starts as the checkpoint's and learns to use it.
         picked[CRITIC_INPUT] = torch.cat([saved, saved.new_zeros(saved.shape[0], width - saved.shape[1])], dim=1)

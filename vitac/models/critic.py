@@ -29,6 +29,7 @@ class StateCritic(nn.Module):
         check_widths("critic.units", units)
         check_flag("critic.reads_actor_memory", reads_actor_memory)
         self.reads_actor_memory = reads_actor_memory
+        self.state_dim = in_dim
         self.mlp, d = mlp(in_dim + (memory_dim if reads_actor_memory else 0), units)
         self.value = nn.Linear(d, 1)
 
