@@ -159,7 +159,7 @@ def test_table_one_budget_is_the_distillation_recipes_settings_for_450_iteration
     for row in ("tactile", "wrist", "fusion_cmt_sym"):
         cfg = compose_config(["preset=cpu_table1", f"experiment=table1/{row}"])
         assert cfg.algo == recipe.algo and cfg.envs == recipe.envs
-        assert cfg.teacher_ckpt == "pretrained/privileged_contact"  # the default teacher
+        assert cfg.teacher_ckpt == "pretrained/privileged_contact_residual"  # the default teacher
         assert cfg.trainer.iterations * cfg.envs.num_envs * cfg.algo.horizon == 460_800
     assert recipe.teacher_ckpt == "pretrained/privileged"  # the one pretrained/cmt_sym_dagger learned from
     assert compose_config(["preset=cpu_table1", "algo=ppo"]).algo.lr == compose_config(["algo=ppo"]).algo.lr

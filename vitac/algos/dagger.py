@@ -1,7 +1,7 @@
 """Online distillation (DAgger) on the shared rollout loop: the student acts, a teacher labels every state it
 visits with its mean action, and the student learns to match those labels.
 
-The teacher is any trained policy of the project (`teacher_ckpt=`, by default the shipped privileged one),
+The teacher is any trained policy of the project (`teacher_ckpt=`, by default the shipped 97% one),
 run with its own observations, its own frozen normalizer statistics and its own recurrent state, which
 advances along the trajectory actually taken and resets where episodes restart. The student trains by
 truncated back-propagation over the stored sequences with the stored recurrent state, as PPO does. The
