@@ -8,7 +8,6 @@ from vitac.tasks.screw import props
 from vitac.tasks.screw.config import thread_yaw
 from vitac.tasks.screw.task import ROTATION_AXIS, ScrewTask
 
-
 class OracleController:
     """Turn the nut the tightening way at a fixed rate while pressing it lightly onto the thread; from off the
     thread, first bring the nut's axis over the bolt's (true poses), and press only while it is there.
@@ -35,9 +34,15 @@ class OracleController:
                 return approach
             action[:2] = self._centre(physics, turning=True)
         action[2] = self.press
-        # Tightening is a negative world z rotation, which the unidirectional mapping -(a + 1) / 2 reaches at a = 2 t - 1.
-        action[ROTATION_AXIS] = 2 * self.turn - 1 if self.task.config.unidirectional_rotation else -self.turn
+        action[ROTATION_AXIS] = self._rotation(-self.turn)  # tightening is a negative world z rotation
         return action
+
+    def _rotation(self, turn: float) -> float:
+        """The rotation action for a signed turn (in rotation steps, negative tightens). Under
+        `unidirectional_rotation` the action a turns -(a + 1) / 2, only ever tightening: a = -2 turn - 1."""
+        if not self.task.config.unidirectional_rotation:
+            return turn
+        return -2.0 * min(turn, 0.0) - 1.0
 
     def _centre(self, physics, turning: bool) -> np.ndarray:
         """The x, y action that puts the nut's axis on the bolt's; while turning, against the circle the nut, held
@@ -60,15 +65,20 @@ class OracleController:
         if gap < -0.5 * props.PITCH:
             return None
         action = np.zeros(6)
+        action[ROTATION_AXIS] = self._rotation(0.0)
         action[:2] = self._centre(physics, turning=False)
         if np.linalg.norm((task.goal_pos(physics) - task.nut_pos(physics))[:2]) > self.align_tolerance:
+            # Lifted back to the hover height first: a nut resting on the crest off the axis does not slide over.
+            action[2] = max(0.0, (self.hover - gap) / task.config.pos_action_scale)
             return action
         if gap > self.hover:
             action[2] = -min(1.0, (gap - 0.5 * self.hover) / task.config.pos_action_scale)
             return action
+        if task.config.unidirectional_rotation:
+            return None  # it can only tighten: pressed lightly while turning, the nut drops into the thread's phase
         height = task.nut_pos(physics)[2] - task.fixed_pos(physics)[2]
         phase = (thread_yaw(height) - task.nut_yaw(physics) + np.pi) % (2 * np.pi) - np.pi
         if abs(phase) > 0.1:
-            action[ROTATION_AXIS] = np.clip(phase / task.config.rot_action_scale, -1.0, 1.0)
+            action[ROTATION_AXIS] = self._rotation(np.clip(phase / task.config.rot_action_scale, -1.0, 1.0))
             return action
         return None
