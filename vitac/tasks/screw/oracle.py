@@ -8,6 +8,7 @@ from vitac.tasks.screw import props
 from vitac.tasks.screw.config import thread_yaw
 from vitac.tasks.screw.task import ROTATION_AXIS, ScrewTask
 
+
 class OracleController:
     """Turn the nut the tightening way at a fixed rate while pressing it lightly onto the thread; from off the
     thread, first bring the nut's axis over the bolt's (true poses), and press only while it is there.
