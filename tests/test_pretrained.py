@@ -81,6 +81,15 @@ def test_the_contact_teachers_cmt_students_are_their_archived_cells(name, cell, 
     assert record["sha256"] == hashlib.sha256(Path("pretrained/privileged_contact.pt").read_bytes()).hexdigest()
 
 
+def test_the_off_thread_screw_teacher_is_its_archived_run_on_the_tightening_only_task():
+    _, _, settings = load_policy("pretrained/screw_offthread_privileged", key="teacher_ckpt")
+    assert settings["start"] == "off_thread" and settings["unidirectional_rotation"]
+    assert load_checkpoint("pretrained/screw_offthread_privileged")["env_steps"] == 307_200  # 300 x 32 x 32
+    archive = Path("docs/data/results/screw_offthread/privileged_seed0")
+    report = json.loads((archive / "checkpoints" / "last.eval.json").read_text())
+    assert report["outcomes"]["threaded on and seated"] == 380 and report["episodes"] == 400
+
+
 def test_a_teacher_whose_weights_do_not_fit_its_config_is_refused_naming_the_key(tmp_path):
     """A checkpoint is rebuilt from its own stored config, so a teacher of another architecture than the student
     is fine; weights that do not fit that config (a hand-edited file) are refused before anything is simulated."""
