@@ -336,6 +336,17 @@ def test_paired_pairs_on_disjoint_episodes_sum_into_one_test_and_overlapping_one
         paired_summed([*held_out, *held_out], ["a", "b", "a", "b"])
 
 
+def test_paired_outcomes_count_any_tasks_successes():
+    from vitac.analysis.outcomes import paired
+
+    def report(success):  # the screw task's labels: a success is not "inserted"
+        return dict(seed=2000000, episodes=len(success), randomization_scale=1.0, episode_success=success,
+                    final_state=[dict(outcome="threaded on and seated" if ok else "jammed on the crest") for ok in success])
+
+    line = paired(report([1, 1, 1, 0]), report([0, 1, 0, 0]), ("a", "b")).splitlines()[0]
+    assert line == "paired: inserted only by a: 2, only by b: 0, exact McNemar two-sided p = 0.500"
+
+
 def test_runs_help_lists_every_command_and_an_unknown_command_names_the_allowed_ones(capsys):
     from vitac import runs
 

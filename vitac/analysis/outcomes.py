@@ -116,8 +116,15 @@ def discordant_pair(first: dict, second: dict, names: tuple[str, str]) -> tuple[
     differ = [k for k in SAME_EPISODES if first.get(k) != second.get(k)]
     if differ:
         raise SystemExit(f"--paired: {names[0]} and {names[1]} are not the same episodes ({differ} differ)")
-    a, b = ([e["outcome"] == "inserted" for e in final_states(r)] for r in (first, second))
+    a, b = (successes(r) for r in (first, second))
     return discordant(a, b)
+
+
+def successes(report: dict) -> list[bool]:
+    """Each episode's success: the report's own flags (any task), or for an older insertion report its outcomes."""
+    if report.get("episode_success") is not None:
+        return [bool(s) for s in report["episode_success"]]
+    return [e["outcome"] == "inserted" for e in final_states(report)]
 
 
 def paired(first: dict, second: dict, names: tuple[str, str]) -> str:
