@@ -11,7 +11,8 @@ from vitac.tasks.screw.task import ROTATION_AXIS, ScrewTask
 
 class OracleController:
     """Turn the nut the tightening way at a fixed rate while pressing it lightly onto the thread; from off the
-    thread, first bring the nut's axis over the bolt's (true poses), and press only while it is there.
+    thread, first bring the nut's axis over the bolt's (true poses), and press only while it is there. With both
+    rotation ways open it turns the nut to the thread's phase before pressing; tightening only, it need not.
 
     Args:
         task: the screw task whose physics the controller reads.
@@ -80,6 +81,6 @@ class OracleController:
         height = task.nut_pos(physics)[2] - task.fixed_pos(physics)[2]
         phase = (thread_yaw(height) - task.nut_yaw(physics) + np.pi) % (2 * np.pi) - np.pi
         if abs(phase) > 0.1:
-            action[ROTATION_AXIS] = self._rotation(np.clip(phase / task.config.rot_action_scale, -1.0, 1.0))
+            action[ROTATION_AXIS] = np.clip(phase / task.config.rot_action_scale, -1.0, 1.0)
             return action
         return None
