@@ -183,7 +183,22 @@ def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
                                                 "CMT + sym": [99.0]}
     assert data["steps_to_success_per_seed"] == {"Privileged": [100.0], "Wrist-camera": [], "Tactile": [100.0, 101.0, 102.0],
                                                  "CMT + sym": [101.0]}
+    assert data["start"] == "engaged"  # fake runs name no start: the paper's
+    # every pair on the seeds both have: tactile's seed 0 (400 of 400) against privileged's (300) and CMT + sym's seed 1
+    assert [(p["first"], p["second"], p["episodes"], p["only_first"], p["only_second"]) for p in data["paired"]] == [
+        ("Privileged", "Tactile", 400, 0, 100), ("Tactile", "CMT + sym", 400, 3, 0)]
     assert (tmp_path / "out" / "screw.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize(("record", "runs"), [("screw.json", "docs/data/screw_runs"),
+                                              ("screw_offthread.json", "docs/data/results/screw_offthread")])
+def test_the_committed_screw_records_are_what_the_report_makes_of_the_committed_runs(tmp_path, monkeypatch, record, runs):
+    """docs/data/screw.json and screw_offthread.json: `python -m vitac.report <runs> --out <dir>`'s screw.json."""
+    from vitac.report import screw_cells, screw_figure
+
+    monkeypatch.chdir(ROOT)
+    screw_figure(screw_cells([Path(runs)], [0, 1, 2], 400), 400, tmp_path)
+    assert json.loads((tmp_path / "screw.json").read_text()) == json.loads((ROOT / "docs/data" / record).read_text())
 
 
 def test_report_draws_both_pads_force_fields_over_an_episode_for_each_policy(tmp_path):

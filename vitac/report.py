@@ -24,7 +24,10 @@ import argparse
 import json
 from pathlib import Path
 
+import yaml
+
 from vitac.analysis import symmetry, table1
+from vitac.analysis.outcomes import mcnemar_exact
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics
 from vitac.utils.checkpoint import resolve_checkpoint
@@ -127,7 +130,7 @@ def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> 
              for name, seeds in done.items()}
     if not any(results.values()):
         return None
-    fig, (ax, ax_steps) = plt.subplots(1, 2, figsize=(8, 3.5))
+    fig, (ax, ax_steps) = plt.subplots(1, 2, figsize=(10, 3.6))
     for i, (values, times) in enumerate(zip(results.values(), steps.values(), strict=True)):
         if values:
             ax.bar(i, sum(values) / len(values), color=f"C{i}", alpha=0.6)
@@ -139,12 +142,42 @@ def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> 
             ax_steps.scatter([i] * len(times), times, color="k", s=12, zorder=3)
     labels = [f"{n}\n({len(v)} seed{'s' if len(v) != 1 else ''})" for n, v in results.items()]
     ax.set_xticks(range(len(results)), labels)
-    ax.set(ylabel="held-out success (%)", ylim=(0, 105), title="screw task (paper's appendix figure)")
+    ax.set(ylabel="held-out success (%)", ylim=(0, 105), title=f"screw task, {screw_start(done)} start")
     ax_steps.set_xticks(range(len(results)), labels)
     ax_steps.set(ylabel="control steps to screw down (mean)", title="how fast, where it succeeds")
-    write_json(out / "screw.json", dict(success_percent_per_seed=results, steps_to_success_per_seed=steps,
+    for a in (ax, ax_steps):
+        a.tick_params(axis="x", labelsize=8)
+    write_json(out / "screw.json", dict(start=screw_start(done), success_percent_per_seed=results,
+                                        steps_to_success_per_seed=steps, paired=screw_pairs(done),
                                         min_episodes=min_episodes))
     return _save(fig, out / "screw.png")
+
+
+def screw_start(done: dict[str, list[dict]]) -> str:
+    """The screw runs' start (engaged, off_thread, away), from their configs; refused when they mix starts, whose
+    rows would otherwise share a figure."""
+    configs = [read_whole(Path(c["run"]) / "config.yaml", yaml.safe_load, "a run's config.yaml")
+               for cells in done.values() for c in cells]
+    starts = {(cfg.get("task") or {}).get("start", "engaged") for cfg in configs}
+    if len(starts) > 1:
+        raise SystemExit(f"the screw runs found mix task starts {sorted(starts)}: report each task's runs on their own")
+    return starts.pop() if starts else "engaged"
+
+
+def screw_pairs(done: dict[str, list[dict]]) -> list[dict]:
+    """Every pair of screw policies compared on the held-out episodes both were evaluated on, seed by seed (exact
+    McNemar over the summed discordant episodes)."""
+    pairs = []
+    names = [n for n, cells in done.items() if cells]
+    for i, first in enumerate(names):
+        for second in names[i + 1:]:
+            by_seed = {c["seed"]: c for c in done[second]}
+            only_first, only_second, episodes = table1.summed_discordant(
+                (c, by_seed[c["seed"]]) for c in done[first] if c["seed"] in by_seed)
+            if episodes:
+                pairs.append(dict(first=first, second=second, episodes=episodes, only_first=only_first,
+                                  only_second=only_second, p=mcnemar_exact(only_first, only_second)))
+    return pairs
 
 
 def computation_table(bench: Path) -> str:

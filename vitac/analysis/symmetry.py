@@ -1,7 +1,7 @@
 """The symmetry prior put to the test: every evaluated wrist + tactile run grouped by what the prior's claims depend
-on (fusion, `reg.lambda_sym`, `reg.mirror`, the training regime, the force-balance penalty, the teacher), with each
-configuration's success, force asymmetry and steps per seed and its paired test against the same configuration
-without the prior (`lambda_sym = 0`). `python -m vitac.report <dirs>` writes it as symmetry.json and symmetry.png
+on (the task, fusion, `reg.lambda_sym`, `reg.mirror`, the training regime, the force-balance penalty, the teacher),
+with each configuration's success, force asymmetry and steps per seed and its paired test against the same
+configuration without the prior (`lambda_sym = 0`). `python -m vitac.report <dirs>` writes it as symmetry.json and symmetry.png
 when the directories hold such runs.
 """
 
@@ -18,7 +18,13 @@ from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status
 from vitac.utils.records import read_whole
 
 FUSIONS = {"NaiveFusion": "naive", "GatedFusion": "gated", "CrossModalTransformer": "cmt"}
-KEY = ("fusion", "lambda_sym", "mirror", "regime", "balance_penalty", "teacher")
+KEY = ("task", "fusion", "lambda_sym", "mirror", "regime", "balance_penalty", "teacher")
+
+
+def task_name(cfg: dict) -> str:
+    """The task family from the task config's class (insertion, screw) and, where it has one, its start."""
+    name = str(cfg["task"]["_target_"]).split(".")[2]
+    return f"{name} ({cfg['task']['start']})" if cfg["task"].get("start") else name
 
 
 def regime(cfg: dict) -> str:
@@ -49,7 +55,7 @@ def cell(run: Path, min_episodes: int) -> dict | None:
     elif cfg.get("critic_ckpt"):  # a fine-tune: its teacher is the critic's
         teacher = str(cfg["critic_ckpt"])
     balance = [e["field_contact"] for e in report.get("force_balance") or [] if e and e.get("field_contact") is not None]
-    return dict(fusion=fusion, lambda_sym=float(cfg["reg"].get("lambda_sym", 0.0)),
+    return dict(task=task_name(cfg), fusion=fusion, lambda_sym=float(cfg["reg"].get("lambda_sym", 0.0)),
                 mirror=cfg["reg"].get("mirror", "physical"), regime=regime(cfg),
                 balance_penalty=float(cfg["task"].get("balance_penalty_scale", 0.0)), teacher=teacher,
                 seed=cfg.get("seed"), run=str(run), env_steps=run_status(run)["env_steps"], eval_seed=report["seed"],
@@ -110,8 +116,8 @@ def figure(results: list[dict], path: Path) -> Path:
         families.setdefault(tuple(r[k] for k in KEY if k != "lambda_sym"), []).append(r)
     for i, (family, members) in enumerate(sorted(families.items(), key=lambda kv: str(kv[0]))):
         members.sort(key=lambda r: r["lambda_sym"])
-        fusion, mirror, how, balance, teacher = family
-        label = f"{fusion}, {mirror} mirror, {how}" + (f", balance {balance}" if balance else "") + f", teacher {teacher}"
+        task, fusion, mirror, how, balance, teacher = family
+        label = f"{task}: {fusion}, {mirror} mirror, {how}" + (f", balance {balance}" if balance else "") + f", teacher {teacher}"
         lambdas = [r["lambda_sym"] for r in members]
         ax.plot(lambdas, [r["mean"] for r in members], "o-", color=f"C{i}", label=label)
         for r in members:
