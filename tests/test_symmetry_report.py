@@ -18,15 +18,15 @@ SYMMETRY_RUNS = ("docs/data/table1_runs", "docs/data/results/contact_teacher", "
 
 
 def sym_run(sweep, seed, lambda_sym, successes, algo="vitac.algos.dagger.DAgger", asymmetry=None, obs="wrist_tactile",
-            task=None):
+            task=None, balance=0.0):
     task = task or dict(_target_="vitac.tasks.insertion.config.InsertionConfig")
-    run = fake_run(sweep, f"cmt lambda={lambda_sym} {algo.rsplit('.', 1)[-1]} {obs} {task.get('start')}", seed, 10,
+    run = fake_run(sweep, f"cmt lambda={lambda_sym} {algo.rsplit('.', 1)[-1]} {obs} {task.get('start')} {balance}", seed, 10,
                    successes=successes)
     config = yaml.safe_load((run / "config.yaml").read_text())
     modalities = ["proprio", "wrist", "tactile_left", "tactile_right"] if obs == "wrist_tactile" else ["proprio", "wrist"]
     config.update(obs=dict(modalities=modalities), fusion={"_target_": "vitac.models.fusion.CrossModalTransformer"},
                   reg=dict(lambda_sym=lambda_sym, mirror="physical"), algo={"_target_": algo, "horizon": 16},
-                  task=dict(task, balance_penalty_scale=0.0), residual={"_target_": None})
+                  task=dict(task, balance_penalty_scale=balance), residual={"_target_": None})
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     (run / "teacher.json").write_text(json.dumps(dict(sha256="ab12cd34" + "0" * 56, env_steps=1)))
     report = json.loads((run / "checkpoints" / "last.eval.json").read_text())
@@ -44,7 +44,12 @@ def test_each_weight_is_a_configuration_paired_against_its_unweighted_twin_on_sh
     sym_run(tmp_path, 0, 1.0, episodes(400), obs="wrist")  # not a wrist + tactile run: left out
     screw = sym_run(tmp_path, 0, 1.0, episodes(380), task=dict(_target_="vitac.tasks.screw.config.ScrewConfig",
                                                                start="off_thread"))  # another task: no twin
+    sym_run(tmp_path, 0, 0.0, episodes(380), balance=0.02)  # the balance penalty instead: against neither
     found = symmetry.configurations([tmp_path])
+    penalised = [r for r in found if r["balance_penalty"] == 0.02]
+    assert [(r["against_lambda_0"], r["against_no_penalty"]["only_with"], r["against_no_penalty"]["only_without"])
+            for r in penalised] == [(None, 20, 0)]
+    found = [r for r in found if r["balance_penalty"] == 0.0]
     assert [r["runs"] for r in found if r["task"] == "screw (off_thread)"] == [[str(screw)]]
     results = {(r["lambda_sym"], r["regime"]): r for r in found if r["task"] == "insertion"}
     assert set(results) == {(0.0, "dagger"), (0.1, "dagger"), (1.0, "dagger"), (1.0, "kickstart")}
@@ -53,8 +58,8 @@ def test_each_weight_is_a_configuration_paired_against_its_unweighted_twin_on_sh
     assert weighted["mean_field_asymmetry"] == pytest.approx(0.5)
     assert results[(0.0, "dagger")]["mean_field_asymmetry"] == pytest.approx(0.6)
     paired = weighted["against_lambda_0"]
-    assert (paired["episodes"], paired["only_with_prior"], paired["only_without"]) == (800, 0, 20) and paired["p"] < 1e-5
-    assert results[(0.1, "dagger")]["against_lambda_0"]["only_with_prior"] == 10  # seed 0 only
+    assert (paired["episodes"], paired["only_with"], paired["only_without"]) == (800, 0, 20) and paired["p"] < 1e-5
+    assert results[(0.1, "dagger")]["against_lambda_0"]["only_with"] == 10  # seed 0 only
     assert results[(0.1, "dagger")]["mean_field_asymmetry"] is None and results[(0.1, "dagger")]["std"] is None
     assert results[(1.0, "kickstart")]["against_lambda_0"] is None and results[(0.0, "dagger")]["against_lambda_0"] is None
     assert [r["against_lambda_0"] for r in found if r["task"] != "insertion"] == [None]

@@ -83,23 +83,26 @@ def configurations(dirs: list[Path], min_episodes: int = 400) -> list[dict]:
                             mean_field_asymmetry=mean_std(asym)[0],
                             steps_to_success=[c["steps_to_success"] for c in members],
                             env_steps=[c["env_steps"] for c in members], runs=[c["run"] for c in members],
-                            against_lambda_0=_paired(members, groups.get(_twin(key)))))
+                            against_lambda_0=_paired(members, groups.get(_twin(key, "lambda_sym"))),
+                            against_no_penalty=_paired(members, groups.get(_twin(key, "balance_penalty")),
+                                                       "balance_penalty")))
     return results
 
 
-def _twin(key: tuple) -> tuple:
-    return tuple(0.0 if name == "lambda_sym" else value for name, value in zip(KEY, key, strict=True))
+def _twin(key: tuple, setting: str) -> tuple:
+    """The same configuration with `setting` (the prior's weight or the balance penalty) at 0."""
+    return tuple(0.0 if name == setting else value for name, value in zip(KEY, key, strict=True))
 
 
-def _paired(members: list[dict], twins: list[dict] | None) -> dict | None:
-    """Exact McNemar, summed over the seeds both have (same held-out episodes): with the prior against without."""
-    if not twins or members[0]["lambda_sym"] == 0:
+def _paired(members: list[dict], twins: list[dict] | None, setting: str = "lambda_sym") -> dict | None:
+    """Exact McNemar, summed over the seeds both have (same held-out episodes): with `setting` on against off."""
+    if not twins or members[0][setting] == 0:
         return None
     by_seed = {c["seed"]: c for c in twins}
     only_with, only_without, episodes = summed_discordant((c, by_seed[c["seed"]]) for c in members if c["seed"] in by_seed)
     if not episodes:
         return None
-    return dict(episodes=episodes, only_with_prior=only_with, only_without=only_without,
+    return dict(episodes=episodes, only_with=only_with, only_without=only_without,
                 p=mcnemar_exact(only_with, only_without))
 
 
