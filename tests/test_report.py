@@ -183,7 +183,7 @@ def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
                                                 "CMT + sym": [99.0]}
     assert data["steps_to_success_per_seed"] == {"Privileged": [100.0], "Wrist-camera": [], "Tactile": [100.0, 101.0, 102.0],
                                                  "CMT + sym": [101.0]}
-    assert data["start"] == "engaged"  # fake runs name no start: the paper's
+    assert data["task"] == "insertion"  # fake runs name no task: read as the default's
     # every pair on the seeds both have: tactile's seed 0 (400 of 400) against privileged's (300) and CMT + sym's seed 1
     assert [(p["first"], p["second"], p["episodes"], p["only_first"], p["only_second"]) for p in data["paired"]] == [
         ("Privileged", "Tactile", 400, 0, 100), ("Tactile", "CMT + sym", 400, 3, 0)]

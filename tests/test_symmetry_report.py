@@ -50,7 +50,7 @@ def test_each_weight_is_a_configuration_paired_against_its_unweighted_twin_on_sh
     assert [(r["against_lambda_0"], r["against_no_penalty"]["only_with"], r["against_no_penalty"]["only_without"])
             for r in penalised] == [(None, 20, 0)]
     found = [r for r in found if r["balance_penalty"] == 0.0]
-    assert [r["runs"] for r in found if r["task"] == "screw (off_thread)"] == [[str(screw)]]
+    assert [r["runs"] for r in found if r["task"] == "screw_offthread"] == [[str(screw)]]
     results = {(r["lambda_sym"], r["regime"]): r for r in found if r["task"] == "insertion"}
     assert set(results) == {(0.0, "dagger"), (0.1, "dagger"), (1.0, "dagger"), (1.0, "kickstart")}
     weighted = results[(1.0, "dagger")]

@@ -29,7 +29,7 @@ import yaml
 from vitac.analysis import symmetry, table1
 from vitac.analysis.outcomes import mcnemar_exact
 from vitac.analysis.status import sweep_cells
-from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics
+from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics, task_name
 from vitac.utils.checkpoint import resolve_checkpoint
 from vitac.utils.cli import int_at_least, output_dir, stop_quietly_when_the_reader_closes, tool_entry
 from vitac.utils.records import read_whole, write_json
@@ -142,26 +142,25 @@ def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> 
             ax_steps.scatter([i] * len(times), times, color="k", s=12, zorder=3)
     labels = [f"{n}\n({len(v)} seed{'s' if len(v) != 1 else ''})" for n, v in results.items()]
     ax.set_xticks(range(len(results)), labels)
-    ax.set(ylabel="held-out success (%)", ylim=(0, 105), title=f"screw task, {screw_start(done)} start")
+    ax.set(ylabel="held-out success (%)", ylim=(0, 105), title=f"task={screw_task(done)}")
     ax_steps.set_xticks(range(len(results)), labels)
     ax_steps.set(ylabel="control steps to screw down (mean)", title="how fast, where it succeeds")
     for a in (ax, ax_steps):
         a.tick_params(axis="x", labelsize=8)
-    write_json(out / "screw.json", dict(start=screw_start(done), success_percent_per_seed=results,
+    write_json(out / "screw.json", dict(task=screw_task(done), success_percent_per_seed=results,
                                         steps_to_success_per_seed=steps, paired=screw_pairs(done),
                                         min_episodes=min_episodes))
     return _save(fig, out / "screw.png")
 
 
-def screw_start(done: dict[str, list[dict]]) -> str:
-    """The screw runs' start (engaged, off_thread, away), from their configs; refused when they mix starts, whose
-    rows would otherwise share a figure."""
-    configs = [read_whole(Path(c["run"]) / "config.yaml", yaml.safe_load, "a run's config.yaml")
-               for cells in done.values() for c in cells]
-    starts = {(cfg.get("task") or {}).get("start", "engaged") for cfg in configs}
-    if len(starts) > 1:
-        raise SystemExit(f"the screw runs found mix task starts {sorted(starts)}: report each task's runs on their own")
-    return starts.pop() if starts else "engaged"
+def screw_task(done: dict[str, list[dict]]) -> str:
+    """The screw runs' task (screw, screw_offthread, screw_insert), from their configs; refused when they mix tasks,
+    whose rows would otherwise share a figure."""
+    tasks = {task_name(read_whole(Path(c["run"]) / "config.yaml", yaml.safe_load, "a run's config.yaml"))
+             for cells in done.values() for c in cells}
+    if len(tasks) > 1:
+        raise SystemExit(f"the screw runs found mix tasks {sorted(tasks)}: report each task's runs on their own")
+    return tasks.pop() if tasks else "screw"
 
 
 def screw_pairs(done: dict[str, list[dict]]) -> list[dict]:

@@ -131,6 +131,16 @@ def check_same_teacher(resume: str | Path, ckpt: str | Path) -> None:
                          f"teacher_ckpt={record.get('teacher_ckpt')}, or start a new run from its weights with init_ckpt=")
 
 
+def task_name(cfg: dict) -> str:
+    """A run's task (insertion, screw, screw_offthread, screw_insert) from its config; runs composed before tasks
+    carried their name read it from the config's class and start (an insert-then-screw one as screw_offthread)."""
+    task = cfg.get("task") or {}
+    if task.get("name"):
+        return task["name"]
+    family = str(task.get("_target_", "vitac.tasks.insertion")).split(".")[2]
+    return "screw_offthread" if task.get("start") == "off_thread" else family
+
+
 def run_status(run: Path) -> dict:
     """A run directory's (or its archive's) row, seed, status (done, partial, missing: no checkpoint yet), completed
     iterations of its budget, env steps, and the checkpoint it was warm-started from (None if it started fresh)."""

@@ -14,17 +14,11 @@ import yaml
 
 from vitac.analysis.outcomes import mcnemar_exact
 from vitac.analysis.table1 import mean_std, summed_discordant
-from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status
+from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status, task_name
 from vitac.utils.records import read_whole
 
 FUSIONS = {"NaiveFusion": "naive", "GatedFusion": "gated", "CrossModalTransformer": "cmt"}
 KEY = ("task", "fusion", "lambda_sym", "mirror", "regime", "balance_penalty", "teacher")
-
-
-def task_name(cfg: dict) -> str:
-    """The task family from the task config's class (insertion, screw) and, where it has one, its start."""
-    name = str(cfg["task"]["_target_"]).split(".")[2]
-    return f"{name} ({cfg['task']['start']})" if cfg["task"].get("start") else name
 
 
 def regime(cfg: dict) -> str:

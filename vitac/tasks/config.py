@@ -50,6 +50,7 @@ class GraspTaskConfig:
     ORACLE: ClassVar[str] = ""  # dotted path of its scripted controller: oracle(task)(physics) -> action
     TASK_KEY: ClassVar[str] = "task"  # the config key refusals name
 
+    name: str = ""  # the conf/task file that composed it: reports group runs by task with it
     control_hz: float = 60.0
     physics_substeps: int = 8
     episode_steps: int = 255
