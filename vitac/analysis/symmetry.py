@@ -43,15 +43,17 @@ def cell(run: Path, min_episodes: int) -> dict | None:
     report = read_whole(run / EVALUATION, json.load, "a vitac.evaluate report")
     if report["episodes"] < min_episodes:
         return None
-    teacher = None
-    if (run / TEACHER_RECORD).is_file():
-        teacher = read_whole(run / TEACHER_RECORD, json.load, "a distilled run's teacher record")["sha256"][:8]
+    teacher = teacher_name = None
+    if (run / TEACHER_RECORD).is_file():  # by content; the name it was given is for the figure's legend
+        record = read_whole(run / TEACHER_RECORD, json.load, "a distilled run's teacher record")
+        teacher, teacher_name = record["sha256"][:8], Path(str(record.get("teacher_ckpt", ""))).stem or None
     elif cfg.get("critic_ckpt"):  # a fine-tune: its teacher is the critic's
         teacher = str(cfg["critic_ckpt"])
     balance = [e["field_contact"] for e in report.get("force_balance") or [] if e and e.get("field_contact") is not None]
     return dict(task=task_name(cfg), fusion=fusion, lambda_sym=float(cfg["reg"].get("lambda_sym", 0.0)),
                 mirror=cfg["reg"].get("mirror", "physical"), regime=regime(cfg),
                 balance_penalty=float(cfg["task"].get("balance_penalty_scale", 0.0)), teacher=teacher,
+                teacher_name=teacher_name,
                 seed=cfg.get("seed"), run=str(run), env_steps=run_status(run)["env_steps"], eval_seed=report["seed"],
                 success=report["success_rate"], episode_success=report["episode_success"],
                 steps_to_success=report.get("steps_to_success_mean"),
@@ -72,7 +74,7 @@ def configurations(dirs: list[Path], min_episodes: int = 400) -> list[dict]:
         successes = [100 * c["success"] for c in members]
         mean, std = mean_std(successes)
         asym = [c["field_asymmetry_in_contact"] for c in members if c["field_asymmetry_in_contact"] is not None]
-        results.append(dict(zip(KEY, key, strict=True), seeds=[c["seed"] for c in members], success=successes,
+        results.append(dict(zip(KEY, key, strict=True), teacher_name=members[0]["teacher_name"], seeds=[c["seed"] for c in members], success=successes,
                             mean=mean, std=std, field_asymmetry_in_contact=[c["field_asymmetry_in_contact"] for c in members],
                             mean_field_asymmetry=mean_std(asym)[0],
                             steps_to_success=[c["steps_to_success"] for c in members],
@@ -107,13 +109,14 @@ def figure(results: list[dict], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, ax_asym) = plt.subplots(1, 2, figsize=(9, 3.6))
+    fig, (ax, ax_asym) = plt.subplots(1, 2, figsize=(11.5, 5))
     families: dict[tuple, list[dict]] = {}
     for r in results:
         families.setdefault(tuple(r[k] for k in KEY if k != "lambda_sym"), []).append(r)
     for i, (family, members) in enumerate(sorted(families.items(), key=lambda kv: str(kv[0]))):
         members.sort(key=lambda r: r["lambda_sym"])
         task, fusion, mirror, how, balance, teacher = family
+        teacher = f"{members[0].get('teacher_name')} ({teacher})" if members[0].get("teacher_name") else teacher
         label = f"{task}: {fusion}, {mirror} mirror, {how}" + (f", balance {balance}" if balance else "") + f", teacher {teacher}"
         lambdas = [r["lambda_sym"] for r in members]
         ax.plot(lambdas, [r["mean"] for r in members], "o-", color=f"C{i}", label=label)
@@ -128,8 +131,8 @@ def figure(results: list[dict], path: Path) -> Path:
     ax.set(ylabel="held-out success (%)", title="success against the prior's weight (dots: seeds)")
     # the measure's whole range: a difference in the third decimal must not fill the panel
     ax_asym.set(ylabel="field asymmetry in contact", title="0 balanced, 1 one pad alone", ylim=(0, 1))
-    ax.legend(fontsize=6)
-    fig.tight_layout()
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=2, fontsize=6.5)  # below both panels
+    fig.tight_layout(rect=(0, 0.05 + 0.03 * ((len(families) + 1) // 2), 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
