@@ -27,7 +27,6 @@ from pathlib import Path
 import yaml
 
 from vitac.analysis import symmetry, table1
-from vitac.analysis.outcomes import mcnemar_exact
 from vitac.analysis.status import sweep_cells
 from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics, task_name
 from vitac.utils.checkpoint import resolve_checkpoint
@@ -142,13 +141,14 @@ def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> 
             ax_steps.scatter([i] * len(times), times, color="k", s=12, zorder=3)
     labels = [f"{n}\n({len(v)} seed{'s' if len(v) != 1 else ''})" for n, v in results.items()]
     ax.set_xticks(range(len(results)), labels)
-    ax.set(ylabel="held-out success (%)", ylim=(0, 105), title=f"task={screw_task(done)}")
+    task = screw_task(done)
+    ax.set(ylabel="held-out success (%)", ylim=(0, 105), title=f"task={task}")
     ax_steps.set_xticks(range(len(results)), labels)
     ax_steps.set(ylabel="control steps to screw down (mean)", title="how fast, where it succeeds")
     for a in (ax, ax_steps):
         a.tick_params(axis="x", labelsize=8)
-    write_json(out / "screw.json", dict(task=screw_task(done), success_percent_per_seed=results,
-                                        steps_to_success_per_seed=steps, paired=screw_pairs(done),
+    write_json(out / "screw.json", dict(task=task, success_percent_per_seed=results,
+                                        steps_to_success_per_seed=steps, paired=screw_pairs(cells),
                                         min_episodes=min_episodes))
     return _save(fig, out / "screw.png")
 
@@ -163,20 +163,11 @@ def screw_task(done: dict[str, list[dict]]) -> str:
     return tasks.pop() if tasks else "screw"
 
 
-def screw_pairs(done: dict[str, list[dict]]) -> list[dict]:
+def screw_pairs(cells: dict[str, list[dict]]) -> list[dict]:
     """Every pair of screw policies compared on the held-out episodes both were evaluated on, seed by seed (exact
-    McNemar over the summed discordant episodes)."""
-    pairs = []
-    names = [n for n, cells in done.items() if cells]
-    for i, first in enumerate(names):
-        for second in names[i + 1:]:
-            by_seed = {c["seed"]: c for c in done[second]}
-            only_first, only_second, episodes = table1.summed_discordant(
-                (c, by_seed[c["seed"]]) for c in done[first] if c["seed"] in by_seed)
-            if episodes:
-                pairs.append(dict(first=first, second=second, episodes=episodes, only_first=only_first,
-                                  only_second=only_second, p=mcnemar_exact(only_first, only_second)))
-    return pairs
+    McNemar over the summed discordant episodes), as Table I's rows are."""
+    rows = [dict(row=name, seeds={c["seed"]: c for c in seeds}) for name, seeds in cells.items()]
+    return [test for i, first in enumerate(rows) for second in rows[i + 1:] if (test := table1.paired_test(first, second))]
 
 
 def computation_table(bench: Path) -> str:
