@@ -104,6 +104,12 @@ def test_bad_lambda_sym_is_refused_with_key_value_and_rule(value):
         build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
 
 
+def test_bad_symmetry_weighting_is_refused_with_key_value_and_choices():
+    cfg = compose_config(["reg=sym", "reg.weighting=scaled"])
+    with pytest.raises(ValueError, match=r"reg\.weighting='scaled' is not allowed: expected one of \['absolute', 'relative'\]"):
+        build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
+
+
 def test_observation_that_does_not_fit_its_encoder_is_refused():
     cfg = compose_config(["task.taxel_rows=6", "task.taxel_cols=6", "obs=tactile", "fusion=naive"])
     with pytest.raises(ValueError, match=r"task\.taxel_rows x task\.taxel_cols"):

@@ -132,9 +132,9 @@ def test_the_symmetry_loss_reaches_the_tactile_encoders_only_with_reg_sym(reg):
         assert torch.equal(terms["loss"], terms["distill_loss"])
 
 
-def _symmetry_update(lambda_sym: float | None) -> tuple[dict, dict]:
+def _symmetry_update(lambda_sym: float | None, weighting: str = "absolute") -> tuple[dict, dict]:
     """One DAgger minibatch's terms and the gradients of its whole loss, from the same weights and data; None: reg=none."""
-    reg = ["reg=none"] if lambda_sym is None else ["reg=sym", f"reg.lambda_sym={lambda_sym}"]
+    reg = ["reg=none"] if lambda_sym is None else ["reg=sym", f"reg.lambda_sym={lambda_sym}", f"reg.weighting={weighting}"]
     student = _policy(["obs=wrist_tactile", "fusion=cmt", "critic=none"] + reg)
     module = DAgger(student, _SpaceFake(num_envs=2), _FunctionTeacher(), horizon=8, seq_len=4, minibatch_size=8)
     generator = torch.Generator().manual_seed(1)
@@ -158,6 +158,27 @@ def test_a_zero_symmetry_weight_updates_bit_for_bit_as_no_regularizer_and_the_we
     assert any(k.startswith("encoders.tactile_left") for k in moved)
     for k in moved:
         torch.testing.assert_close(one[k], 2 * half[k], rtol=1e-4, atol=1e-7)
+
+
+def test_a_relative_symmetry_weight_makes_the_term_that_share_of_the_imitation_loss():
+    none_terms, none_grads = _symmetry_update(None)
+    terms, _ = _symmetry_update(0.1, "relative")
+    assert torch.equal(terms["distill_loss"], none_terms["distill_loss"]) and terms["sym_loss"] > 0
+    torch.testing.assert_close(terms["loss"], 1.1 * terms["distill_loss"])  # the term is a tenth of the distance
+    _, zero_grads = _symmetry_update(0.0, "relative")  # weight 0 is no prior, however it is read
+    assert all(torch.equal(zero_grads[k], none_grads[k]) for k in none_grads)
+
+
+def test_the_relative_term_has_the_symmetry_losss_gradient_rescaled_and_none_through_the_main_loss():
+    from vitac.models.symmetry import SymmetryRegularizer
+
+    x, y = torch.tensor([1.0, -2.0], requires_grad=True), torch.tensor(3.0, requires_grad=True)
+    sym, main = (x ** 2).mean(), -2 * y  # L_sym = 2.5, |main| = 6
+    term = SymmetryRegularizer(0.5, weighting="relative").term(sym, main)
+    term.backward()
+    assert term.item() == pytest.approx(3.0)  # 0.5 * |main|
+    torch.testing.assert_close(x.grad, 0.5 * 6 / 2.5 * x.detach())  # d/dx of L_sym = x, scaled by 0.5 |main| / L_sym
+    assert y.grad is None  # the main loss's size is read, not trained
 
 
 def test_bad_dagger_values_are_refused_naming_the_key():

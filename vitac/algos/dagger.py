@@ -30,8 +30,8 @@ LR_SCHEDULES = ("fixed", "linear")
 
 class DAgger(RolloutAlgorithm):
     """The student's actions (or, with probability beta, the teacher's) drive the environments; the loss is the
-    distance to the teacher's mean action within the action bounds, plus `lambda_sym * L_sym` when the student's
-    regularizer is on.
+    distance to the teacher's mean action within the action bounds, plus the symmetry prior's term (`lambda_sym *
+    L_sym`, or relative to the distance) when the student's regularizer is on.
 
     Args:
         policy: the student.
@@ -130,7 +130,7 @@ class DAgger(RolloutAlgorithm):
         mse = (mean - mb["labels"]).square().mean()
         distill = mse if self.hp["loss"] == "mse" else -losses.gaussian_log_prob(mb["labels"], mean, log_std).mean()
         sym_loss = sym.mean() if sym is not None else torch.zeros((), device=mean.device)
-        return dict(loss=distill + policy.regularizer.lambda_sym * sym_loss, distill_loss=distill, action_mse=mse,
+        return dict(loss=distill + policy.regularizer.term(sym_loss, distill), distill_loss=distill, action_mse=mse,
                     sym_loss=sym_loss)
 
     def update(self) -> dict:

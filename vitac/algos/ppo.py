@@ -138,8 +138,8 @@ class PPO(RolloutAlgorithm):
         sym_loss = sym.mean() if sym is not None else torch.zeros((), device=mean.device)
         total = 0.5 * hp["critic_coef"] * v_loss
         if not self.actor_frozen:  # in the warm-up no actor term reaches a gradient
-            total = total + (pg_loss - hp["entropy_coef"] * entropy + hp["bounds_loss_coef"] * b_loss
-                             + policy.regularizer.lambda_sym * sym_loss)
+            actor = pg_loss - hp["entropy_coef"] * entropy + hp["bounds_loss_coef"] * b_loss
+            total = total + (actor + policy.regularizer.term(sym_loss, total + actor))
         return dict(loss=total, policy_loss=pg_loss, value_loss=v_loss, entropy=entropy, bounds_loss=b_loss,
                     sym_loss=sym_loss, approx_kl=approx_kl, clipfrac=clipfrac, advantages=advantages, mean=mean)
 

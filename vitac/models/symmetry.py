@@ -29,6 +29,7 @@ def mirror_pad(field: torch.Tensor) -> torch.Tensor:
 
 
 MIRRORS = {"physical": mirror_pad, "image": flip_vertical}
+WEIGHTINGS = ("absolute", "relative")
 
 
 class SymmetryRegularizer(nn.Module):
@@ -38,9 +39,12 @@ class SymmetryRegularizer(nn.Module):
         lambda_sym: weight of the term (0 turns it off).
         mirror: "physical" (rows reversed and shear_x negated: the right pad's field in the left pad's frame) or
             "image" (the paper's literal row flip).
+        weighting: "absolute" (the term is lambda_sym * L_sym, the paper's) or "relative" (the term's value is
+            lambda_sym times the size of the main loss, every minibatch: the same weight is the same share of the
+            loss under imitation, where L_sym falls to ~1e-3, and under PPO, where it outweighs PPO's own loss).
     """
 
-    def __init__(self, lambda_sym: float = 1.0, mirror: str = "physical"):
+    def __init__(self, lambda_sym: float = 1.0, mirror: str = "physical", weighting: str = "absolute"):
         super().__init__()
         if isinstance(lambda_sym, bool) or not isinstance(lambda_sym, (int, float)):
             raise ValueError(f"reg.lambda_sym={lambda_sym!r} is not allowed: expected a number >= 0")
@@ -48,8 +52,11 @@ class SymmetryRegularizer(nn.Module):
             raise ValueError(f"reg.lambda_sym={lambda_sym!r} is not allowed: expected a number >= 0")
         if mirror not in MIRRORS:
             raise ValueError(f"reg.mirror={mirror!r} is not allowed: expected one of {list(MIRRORS)}")
+        if weighting not in WEIGHTINGS:
+            raise ValueError(f"reg.weighting={weighting!r} is not allowed: expected one of {list(WEIGHTINGS)}")
         self.lambda_sym = float(lambda_sym)
         self.mirror = mirror
+        self.weighting = weighting
 
     @property
     def active(self) -> bool:
@@ -59,3 +66,13 @@ class SymmetryRegularizer(nn.Module):
         """||h_L - enc_R(mirror(right))||^2 averaged over embedding dimensions, one value per sample."""
         mirrored = right_encoder(MIRRORS[self.mirror](right_image))
         return ((left_embedding - mirrored) ** 2).mean(dim=-1)
+
+    def term(self, sym_loss: torch.Tensor, main_loss: torch.Tensor) -> torch.Tensor:
+        """The prior's share of the total loss, given L_sym and the loss it is added to.
+
+        Relative weighting rescales L_sym by |main| / L_sym, both detached: the gradient is L_sym's, scaled so that
+        the term's value is lambda_sym * |main|."""
+        if self.weighting == "absolute" or not self.active:
+            return self.lambda_sym * sym_loss
+        scale = main_loss.detach().abs() / sym_loss.detach().clamp_min(1e-12)
+        return self.lambda_sym * scale * sym_loss
