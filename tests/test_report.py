@@ -102,6 +102,7 @@ def test_a_table_beside_an_earlier_one_pairs_each_row_with_its_earlier_self(tmp_
     fake_run(tmp_path / "before", "Tactile", 0, 10, successes=episodes(300))
     now = fake_run(tmp_path / "now", cmt, 0, 20, budget=20, successes=episodes(380))  # 20 more, none lost
     (now / "teacher.json").write_text(json.dumps(dict(sha256="ab12cd34" + "0" * 56, env_steps=5_000_000)))
+    (now / "unseen_seeds_eval.json").write_text(json.dumps(dict(episodes=400, success_rate=0.9325)))
     rows = {r["row"]: r for r in table1.versus(table1.build([tmp_path / "now"], [0]),
                                                table1.build([tmp_path / "before"], [0]))}
     assert set(rows) == {cmt, "Tactile"}  # rows evaluated in neither table are left out
@@ -109,7 +110,8 @@ def test_a_table_beside_an_earlier_one_pairs_each_row_with_its_earlier_self(tmp_
     assert (rows[cmt]["paired"]["only_first"], rows[cmt]["paired"]["only_second"]) == (20, 0)
     assert rows["Tactile"]["now"]["mean"] is None and rows["Tactile"]["paired"] is None
     md = table1.versus_markdown(list(rows.values()))
-    assert (f"| {cmt} | 96.22 ± 0.98 | 90.00 (1 seed; 0.00 M, 0.1 h) | 95.00 (1 seed; 0.00 M, 0.2 h) | "
+    assert rows[cmt]["now"]["unseen"] == dict(mean=93.25, seeds=1) and rows[cmt]["before"]["unseen"] is None
+    assert (f"| {cmt} | 96.22 ± 0.98 | 90.00 (1 seed; 0.00 M, 0.1 h) | 95.00 (1 seed; 0.00 M, 0.2 h; unseen seeds 93.25 (1)) | "
             "ab12cd34 (5.00 M) | 20 / 0 (400), p = 1.91e-06 |") in md
     assert "| Tactile | 91.41 ± 5.51 | 75.00 (1 seed; 0.00 M, 0.1 h) | not evaluated |  |  |" in md
 
@@ -131,6 +133,7 @@ def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_
     sweep = tmp_path / "sweep"
     runs = [fake_run(sweep, "Wrist", 0, 10, successes=episodes(300)), fake_run(sweep, "Tactile", 1, 4)]
     (runs[0] / "teacher.json").write_text('{"sha256": "0f"}')  # a distilled run's teacher goes with it
+    (runs[0] / "unseen_seeds_eval.json").write_text('{"episodes": 400, "success_rate": 0.7}')  # and its unseen seeds
     before = table1.build([sweep], seeds=[0, 1])
     for run in runs:
         archive(run, tmp_path / "archive" / run.name)
@@ -144,6 +147,7 @@ def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_
                    {k: v for k, v in cell.items() if k != "run"}
     wrist = next(r for r in after["rows"] if r["row"] == "Wrist")["seeds"][0]
     assert wrist["status"] == "done" and wrist["success"] == 0.75 and wrist["env_steps"] == 10 * PER_ITERATION
+    assert wrist["unseen_success"] == 0.7
     with pytest.raises(SystemExit, match="is not allowed: it is not empty"):
         archive(fake_run(sweep, "Wrist", 2, 10), tmp_path / "archive" / runs[1].name)
     with pytest.raises(SystemExit, match="not a run directory to archive, it has no checkpoints/last.ckpt"):

@@ -22,6 +22,8 @@ from vitac.utils.records import check_writable_dir, read_whole, write_json
 
 PART_PREFIX = "metrics_part"
 EVALUATION = Path("checkpoints") / "last.eval.json"  # vitac.evaluate's report on the last checkpoint
+# vitac.evaluate's report on 400 episodes whose seeds no run has used (seed=3000000), beside the held-out one
+UNSEEN_EVALUATION = "unseen_seeds_eval.json"
 TEACHER_RECORD = "teacher.json"  # a distilled run's teacher by content (write_teacher_record)
 ARCHIVE_RECORD = "run.json"  # in a run's archive (vitac/analysis/archive.py): the iterations its checkpoint held
 MIN_FREE_BYTES = 200 * 2**20  # a run's checkpoints (up to ~14 MB each), metrics and videos, with room to spare

@@ -3,8 +3,9 @@
     python -m vitac.runs archive <run dir> --out docs/data/table1_runs/<row>_seed<k>
 
 Keeps what the report reads (the resolved `config.yaml`, every metrics file of the run's attempts, the evaluation
-of its last checkpoint), a distilled run's `teacher.json` (its teacher by content) and, in `run.json`, the
-iterations its last checkpoint held, so Table I can be regenerated from the repository after the run directory and
+of its last checkpoint and, where the run has one, its evaluation on unseen seeds, `unseen_seeds_eval.json`), a
+distilled run's `teacher.json` (its teacher by content) and, in `run.json`, the iterations its last checkpoint
+held, so Table I can be regenerated from the repository after the run directory and
 its checkpoints (150 MB for a camera student) are gone. An archive cannot be resumed: it holds no checkpoint.
 """
 
@@ -14,7 +15,14 @@ import argparse
 import shutil
 from pathlib import Path
 
-from vitac.run_dirs import ARCHIVE_RECORD, EVALUATION, TEACHER_RECORD, completed_iterations, last_checkpoint
+from vitac.run_dirs import (
+    ARCHIVE_RECORD,
+    EVALUATION,
+    TEACHER_RECORD,
+    UNSEEN_EVALUATION,
+    completed_iterations,
+    last_checkpoint,
+)
 from vitac.utils.cli import tool_entry
 from vitac.utils.records import write_json
 
@@ -28,7 +36,7 @@ def archive(run: Path, out: Path) -> Path:
     if out.exists() and any(out.iterdir()):
         raise SystemExit(f"--out={str(out)!r} is not allowed: it is not empty")
     (out / "csv").mkdir(parents=True, exist_ok=True)
-    for record in ("config.yaml", TEACHER_RECORD):
+    for record in ("config.yaml", TEACHER_RECORD, UNSEEN_EVALUATION):
         if (run / record).is_file():
             shutil.copyfile(run / record, out / record)
     for metrics in sorted((run / "csv").glob("metrics*.csv")):  # every attempt's file, as read_metrics joins them

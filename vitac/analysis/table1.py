@@ -16,7 +16,7 @@ from pathlib import Path
 from vitac.analysis.compare import wall_clock_hours
 from vitac.analysis.outcomes import discordant, episode_steps, mcnemar_exact
 from vitac.analysis.status import sweep_cells
-from vitac.run_dirs import EVALUATION, TEACHER_RECORD, read_metrics
+from vitac.run_dirs import EVALUATION, TEACHER_RECORD, UNSEEN_EVALUATION, read_metrics
 from vitac.utils.records import read_whole
 
 
@@ -57,8 +57,10 @@ def mean_std(values: list[float]) -> tuple[float | None, float | None]:
 
 
 def evaluated(cell: dict, min_episodes: int) -> dict:
-    """The cell with its evaluation (when its run finished and was evaluated on enough episodes) and wall-clock."""
-    cell = dict(cell, success=None, episodes=0, ci95=None, hours=None, steps_to_success=None, teacher=None)
+    """The cell with its evaluation (when its run finished and was evaluated on enough episodes), its success on
+    unseen seeds (where `unseen_seeds_eval.json` holds enough episodes) and wall-clock."""
+    cell = dict(cell, success=None, episodes=0, ci95=None, hours=None, steps_to_success=None, teacher=None,
+                unseen_success=None)
     if cell["run"] is None:
         return cell
     run = Path(cell["run"])
@@ -75,6 +77,10 @@ def evaluated(cell: dict, min_episodes: int) -> dict:
                         eval_seed=data["seed"], episode_success=data.get("episode_success"),
                         steps_to_success=data.get("steps_to_success_mean"),
                         episode_steps=episode_steps(data.get("episode_success"), data.get("steps_to_success")))
+        if (run / UNSEEN_EVALUATION).is_file():
+            unseen = read_whole(run / UNSEEN_EVALUATION, json.load, "a vitac.evaluate report")
+            if unseen["episodes"] >= min_episodes:
+                cell["unseen_success"] = unseen["success_rate"]
     return cell
 
 
@@ -196,10 +202,17 @@ def versus(now: dict, before: dict) -> list[dict]:
         if row["mean"] is None and old["mean"] is None:
             continue
         sides = {name: dict(mean=r["mean"], std=r["std"], seeds_counted=r["seeds_counted"], budget=_budget(r),
-                            origins=_origins(r)) for name, r in (("now", row), ("before", old))}
+                            origins=_origins(r), unseen=_unseen(r)) for name, r in (("now", row), ("before", old))}
         rows.append(dict(row=row["row"], paper=row["paper"], paper_std=row["paper_std"], **sides,
                          paired=paired_test(dict(row, row="now"), dict(old, row="before"))))
     return rows
+
+
+def _unseen(row: dict) -> dict | None:
+    """The mean success (%) on unseen seeds of the counted cells evaluated there, and how many were."""
+    unseen = [100 * c["unseen_success"] for c in row["seeds"].values()
+              if c["success"] is not None and c["unseen_success"] is not None]
+    return dict(mean=sum(unseen) / len(unseen), seeds=len(unseen)) if unseen else None
 
 
 def versus_markdown(rows: list[dict]) -> str:
@@ -208,9 +221,13 @@ def versus_markdown(rows: list[dict]) -> str:
             return "not evaluated"
         spread = f" ± {s['std']:.2f}" if s["std"] is not None else ""
         steps, hours = s["budget"]
-        return f"{s['mean']:.2f}{spread} ({s['seeds_counted']} seed{'s' * (s['seeds_counted'] > 1)}; {steps}, {hours} h)"
+        unseen = s.get("unseen")
+        unseen = f"; unseen seeds {unseen['mean']:.2f} ({unseen['seeds']})" if unseen else ""
+        return (f"{s['mean']:.2f}{spread} ({s['seeds_counted']} seed{'s' * (s['seeds_counted'] > 1)}; {steps}, {hours} h"
+                f"{unseen})")
 
-    lines = ["| Method | paper (%) | before: success (%) (seeds; env steps, hours a seed) | now | now's teacher | "
+    lines = ["| Method | paper (%) | before: held-out success (%) (seeds; env steps, hours a seed; unseen seeds' "
+             "mean (seeds)) | now | now's teacher | "
              "paired: only now / only before (episodes), exact McNemar p |", "|---|---|---|---|---|---|"]
     for r in rows:
         t = r["paired"]
