@@ -72,14 +72,16 @@ def test_the_97_percent_teacher_is_a_residual_head_on_the_frozen_contact_teacher
         assert recipe[key] == run[key], key
 
 
-@pytest.mark.parametrize("name,cell,lambda_sym", [("cmt_contact", "fusion_cmt_seed0", 0.0),
-                                                   ("cmt_sym_contact", "fusion_cmt_sym_seed0", 1.0)])
-def test_the_contact_teachers_cmt_students_are_their_archived_cells(name, cell, lambda_sym):
+@pytest.mark.parametrize("name,cell,lambda_sym,teacher", [
+    ("cmt_contact", "contact_teacher/fusion_cmt_seed0", 0.0, "privileged_contact"),
+    ("cmt_sym_contact", "contact_teacher/fusion_cmt_sym_seed0", 1.0, "privileged_contact"),
+    ("cmt_residual_teacher_seed1", "residual_teacher/fusion_cmt_seed1", 0.0, "privileged_contact_residual")])
+def test_the_shipped_cmt_students_are_their_archived_cells(name, cell, lambda_sym, teacher):
     policy, _, _ = load_policy(f"pretrained/{name}")
     assert type(policy.fusion).__name__ == "CrossModalTransformer" and policy.regularizer.lambda_sym == lambda_sym
     assert load_checkpoint(f"pretrained/{name}")["env_steps"] == 460_800  # Table I's budget, 450 x 1,024
-    record = json.loads(Path(f"docs/data/results/contact_teacher/{cell}/teacher.json").read_text())
-    assert record["sha256"] == hashlib.sha256(Path("pretrained/privileged_contact.pt").read_bytes()).hexdigest()
+    record = json.loads(Path(f"docs/data/results/{cell}/teacher.json").read_text())
+    assert record["sha256"] == hashlib.sha256(Path(f"pretrained/{teacher}.pt").read_bytes()).hexdigest()
 
 
 def test_the_off_thread_screw_teacher_is_its_archived_run_on_the_tightening_only_task():

@@ -116,6 +116,17 @@ def test_a_table_beside_an_earlier_one_pairs_each_row_with_its_earlier_self(tmp_
     assert "| Tactile | 91.41 ± 5.51 | 75.00 (1 seed; 0.00 M, 0.1 h) | not evaluated |  |  |" in md
 
 
+def test_the_committed_table_from_the_97_percent_teacher_is_the_report_of_its_runs_against_table_one(monkeypatch):
+    """docs/data/versus_97_teacher.json: `python -m vitac.report docs/data/results/residual_teacher --against
+    docs/data/table1_runs --out <dir>`'s versus.json (docs/results.md)."""
+    monkeypatch.chdir(ROOT)
+    committed = json.loads((ROOT / "docs/data/versus_97_teacher.json").read_text())
+    now, before = ([Path(d) for d in committed[side]] for side in ("now", "before"))
+    assert committed["now"] == ["docs/data/results/residual_teacher"] and committed["before"] == ["docs/data/table1_runs"]
+    made = table1.versus(table1.build(now, [0, 1, 2]), table1.build(before, [0, 1, 2]))
+    assert json.loads(json.dumps(made)) == committed["rows"]
+
+
 def test_the_steps_figure_trials_are_blocks_of_held_out_episodes():
     success = [1, 0, 1, 1] + [0, 0, 0, 0] + [1, 1, 1, 1] + [1, 0]
     steps = [100, 120, 140, 90, 100, 110, 120, 95]  # the successes' steps, in episode order, as vitac.evaluate lists them
