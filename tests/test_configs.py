@@ -84,6 +84,27 @@ def test_table_one_rows_build_and_backpropagate(obs, fusion, reg):
     assert any(g is not None and g.abs().sum() > 0 for g in grads)
 
 
+def test_symmetry_after_self_attention_reaches_the_self_attention_through_the_policy():
+    cfg = compose_config(["obs=wrist_tactile", "fusion=cmt", "reg=sym", "reg.placement=self_attention"])
+    env_config = InsertionConfig.from_dict(task_settings(cfg))
+    policy = build_policy_from_config(cfg, env_config)
+    shapes = env_config.observation_shapes()
+    obs_t = {k: torch.rand(2, 2, *shapes[k]) for k in list(cfg.obs.modalities) + ["critic_state"]}
+    obs_t["wrist"] = (obs_t["wrist"] * 255).to(torch.uint8)
+    sym = policy(obs_t, policy.initial_state(2), torch.zeros(2, 2), with_aux=True)[-1]
+    sym.mean().backward()
+    assert sym.shape == (4,) and policy.fusion.self_attn.in_proj_weight.grad.abs().sum() > 0
+    assert policy.fusion.cross_attn.in_proj_weight.grad is None
+
+
+@pytest.mark.parametrize("fusion", ["naive", "gated"])
+def test_symmetry_after_self_attention_is_refused_without_one(fusion):
+    cfg = compose_config(["obs=wrist_tactile", f"fusion={fusion}", "reg=sym", "reg.placement=self_attention"])
+    with pytest.raises(ValueError, match=rf"reg\.placement='self_attention' is not allowed with fusion={fusion}: only "
+                                         r"fusion=cmt has a tactile self-attention"):
+        build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))
+
+
 def test_nested_override_reaches_constructor():
     cfg = compose_config(["fusion=cmt", "fusion.num_heads=8"])
     policy = build_policy_from_config(cfg, InsertionConfig.from_dict(task_settings(cfg)))

@@ -306,10 +306,11 @@ def test_the_symmetry_sweep_scans_the_weight_and_the_mirror_beside_table_one_cmt
         cfg = compose_config(["+sweep=symmetry", f"+experiment/symmetry={path.stem}"])
         assert (cfg.obs.name, cfg.fusion._target_, cfg.preset.name, cfg.teacher_ckpt) == (
             "wrist_tactile", "vitac.models.fusion.CrossModalTransformer", "cpu_table1", "pretrained/privileged_contact_residual")
-        scanned.add((cfg.reg.lambda_sym, cfg.reg.mirror, cfg.reg.weighting))
-    # the weights 0 and 1 with the physical mirror are Table I's CMT and CMT + sym cells
-    assert scanned == {(0.01, "physical", "absolute"), (0.1, "physical", "absolute"), (0.1, "physical", "relative"),
-                       (1.0, "image", "absolute")}
+        scanned.add((cfg.reg.lambda_sym, cfg.reg.mirror, cfg.reg.weighting, cfg.reg.placement))
+    # the weights 0 and 1 with the physical mirror, read at the encoder, are Table I's CMT and CMT + sym cells
+    assert scanned == {(0.01, "physical", "absolute", "encoder"), (0.1, "physical", "absolute", "encoder"),
+                       (0.1, "physical", "relative", "encoder"), (1.0, "image", "absolute", "encoder"),
+                       (1.0, "physical", "absolute", "self_attention")}
 
 
 @pytest.mark.parametrize("sweep", ["table1"])

@@ -18,14 +18,14 @@ SYMMETRY_RUNS = ("docs/data/table1_runs", "docs/data/results/contact_teacher", "
 
 
 def sym_run(sweep, seed, lambda_sym, successes, algo="vitac.algos.dagger.DAgger", asymmetry=None, obs="wrist_tactile",
-            task=None, balance=0.0, weighting="absolute"):
+            task=None, balance=0.0, weighting="absolute", placement="encoder"):
     task = task or dict(_target_="vitac.tasks.insertion.config.InsertionConfig")
-    run = fake_run(sweep, f"cmt lambda={lambda_sym} {algo.rsplit('.', 1)[-1]} {obs} {task.get('start')} {balance} {weighting}", seed, 10,
+    run = fake_run(sweep, f"cmt lambda={lambda_sym} {algo.rsplit('.', 1)[-1]} {obs} {task.get('start')} {balance} {weighting} {placement}", seed, 10,
                    successes=successes)
     config = yaml.safe_load((run / "config.yaml").read_text())
     modalities = ["proprio", "wrist", "tactile_left", "tactile_right"] if obs == "wrist_tactile" else ["proprio", "wrist"]
     config.update(obs=dict(modalities=modalities), fusion={"_target_": "vitac.models.fusion.CrossModalTransformer"},
-                  reg=dict(lambda_sym=lambda_sym, mirror="physical", weighting=weighting), algo={"_target_": algo, "horizon": 16},
+                  reg=dict(lambda_sym=lambda_sym, mirror="physical", weighting=weighting, placement=placement), algo={"_target_": algo, "horizon": 16},
                   task=dict(task, balance_penalty_scale=balance), residual={"_target_": None})
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     (run / "teacher.json").write_text(json.dumps(dict(sha256="ab12cd34" + "0" * 56, env_steps=1)))
@@ -46,9 +46,13 @@ def test_each_weight_is_a_configuration_paired_against_its_unweighted_twin_on_sh
                                                                start="off_thread"))  # another task: no twin
     sym_run(tmp_path, 0, 0.0, episodes(380), balance=0.02)  # the balance penalty instead: against neither
     relative = sym_run(tmp_path, 1, 0.1, episodes(365), weighting="relative")  # its own line; the same twin at 0
+    attended = sym_run(tmp_path, 1, 0.1, episodes(355), placement="self_attention")  # its own line too
     found = symmetry.configurations([tmp_path])
     [relative_result] = [r for r in found if r["weighting"] == "relative"]
     assert relative_result["runs"] == [str(relative)] and relative_result["against_lambda_0"]["only_with"] == 5
+    [attended_result] = [r for r in found if r["placement"] == "self_attention"]
+    assert attended_result["runs"] == [str(attended)] and attended_result["against_lambda_0"]["only_without"] == 5
+    found = [r for r in found if r["placement"] == "encoder"]
     found = [r for r in found if r["weighting"] == "absolute"]
     penalised = [r for r in found if r["balance_penalty"] == 0.02]
     assert [(r["against_lambda_0"], r["against_no_penalty"]["only_with"], r["against_no_penalty"]["only_without"])

@@ -120,6 +120,26 @@ def test_symmetry_loss_is_zero_for_a_mirrored_pair_and_positive_otherwise(mirror
         SymmetryRegularizer(mirror="flip")
 
 
+def test_symmetry_after_self_attention_is_zero_for_a_scene_equal_to_its_mirror_image_and_trains_the_attention():
+    torch.manual_seed(0)
+    enc = ConvSoftArgmaxEncoder((3, 32, 32))
+    cmt = CrossModalTransformer(enc.out_dim, num_heads=2)
+    reg = SymmetryRegularizer(placement="self_attention")
+    left = torch.rand(3, 3, 32, 32)
+
+    def loss(right):
+        return reg.per_sample_attended(cmt, (enc, enc), (left, right), (enc(left), enc(right)))
+
+    assert torch.allclose(loss(mirror_pad(left)), torch.zeros(3), atol=1e-10)  # the mirror image is the same scene
+    asymmetric = loss(torch.rand(3, 3, 32, 32))
+    assert (asymmetric > 0).all()
+    asymmetric.sum().backward()
+    assert cmt.self_attn.in_proj_weight.grad.abs().sum() > 0 and cmt.side.grad.abs().sum() > 0
+    assert cmt.cross_attn.in_proj_weight.grad is None  # the loss reads the tactile tokens, before vision attends
+    with pytest.raises(ValueError, match=r"reg\.placement='fused' is not allowed: expected one of \['encoder', 'self_attention'\]"):
+        SymmetryRegularizer(placement="fused")
+
+
 def test_sigmoid_log_std_bound_starts_at_init_and_keeps_a_gradient_past_the_bound():
     head = RecurrentActorHead(4, log_std_min=-2.0, log_std_max=0.5, log_std_init=-0.3, log_std_bound="sigmoid")
     _, log_std, _, _ = head(torch.zeros(2, 1, 4), head.initial_state(1), torch.zeros(2, 1))

@@ -1,5 +1,5 @@
 """The symmetry prior put to the test: every evaluated wrist + tactile run grouped by what the prior's claims depend
-on (the task, fusion, `reg.lambda_sym`, `reg.mirror`, `reg.weighting`, the training regime, the force-balance penalty, the teacher),
+on (the task, fusion, `reg.lambda_sym`, `reg.mirror`, `reg.weighting`, `reg.placement`, the training regime, the force-balance penalty, the teacher),
 with each configuration's success, force asymmetry and steps per seed and its paired test against the same
 configuration without the prior (`lambda_sym = 0`). `python -m vitac.report <dirs>` writes it as symmetry.json and symmetry.png
 when the directories hold such runs.
@@ -18,7 +18,7 @@ from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status, task_name
 from vitac.utils.records import read_whole
 
 FUSIONS = {"NaiveFusion": "naive", "GatedFusion": "gated", "CrossModalTransformer": "cmt"}
-KEY = ("task", "fusion", "lambda_sym", "mirror", "weighting", "regime", "balance_penalty", "teacher")
+KEY = ("task", "fusion", "lambda_sym", "mirror", "weighting", "placement", "regime", "balance_penalty", "teacher")
 
 
 def regime(cfg: dict) -> str:
@@ -52,7 +52,8 @@ def cell(run: Path, min_episodes: int) -> dict | None:
     balance = [e["field_contact"] for e in report.get("force_balance") or [] if e and e.get("field_contact") is not None]
     lambda_sym = float(cfg["reg"].get("lambda_sym", 0.0))
     return dict(task=task_name(cfg), fusion=fusion, lambda_sym=lambda_sym, mirror=cfg["reg"].get("mirror", "physical"),
-                weighting=cfg["reg"].get("weighting", "absolute") if lambda_sym else "absolute", regime=regime(cfg),
+                weighting=cfg["reg"].get("weighting", "absolute") if lambda_sym else "absolute",
+                placement=cfg["reg"].get("placement", "encoder") if lambda_sym else "encoder", regime=regime(cfg),
                 balance_penalty=float(cfg["task"].get("balance_penalty_scale", 0.0)), teacher=teacher,
                 teacher_name=teacher_name,
                 seed=cfg.get("seed"), run=str(run), env_steps=run_status(run)["env_steps"], eval_seed=report["seed"],
@@ -88,8 +89,8 @@ def configurations(dirs: list[Path], min_episodes: int = 400) -> list[dict]:
 
 def _twin(key: tuple, setting: str) -> tuple:
     """The same configuration with `setting` (the prior's weight or the balance penalty) at 0 (at weight 0, how
-    the weight is read does not matter: "absolute")."""
-    off = {setting: 0.0} | ({"weighting": "absolute"} if setting == "lambda_sym" else {})
+    the weight is read and where do not matter: "absolute", "encoder")."""
+    off = {setting: 0.0} | ({"weighting": "absolute", "placement": "encoder"} if setting == "lambda_sym" else {})
     return tuple(off.get(name, value) for name, value in zip(KEY, key, strict=True))
 
 
@@ -118,9 +119,10 @@ def figure(results: list[dict], path: Path) -> Path:
         families.setdefault(tuple(r[k] for k in KEY if k != "lambda_sym"), []).append(r)
     for i, (family, members) in enumerate(sorted(families.items(), key=lambda kv: str(kv[0]))):
         members.sort(key=lambda r: r["lambda_sym"])
-        task, fusion, mirror, weighting, how, balance, teacher = family
+        task, fusion, mirror, weighting, placement, how, balance, teacher = family
         teacher = f"{members[0].get('teacher_name')} ({teacher})" if members[0].get("teacher_name") else teacher
         label = (f"{task}: {fusion}, {mirror} mirror" + (", weight relative" if weighting == "relative" else "")
+                 + (", after self-attention" if placement == "self_attention" else "")
                  + f", {how}" + (f", balance {balance}" if balance else "") + f", teacher {teacher}")
         lambdas = [r["lambda_sym"] for r in members]
         ax.plot(lambdas, [r["mean"] for r in members], "o-", color=f"C{i}", label=label)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from vitac.models.fusion import check_fusion
 from vitac.models.policy import VisuoTactilePolicy
+from vitac.tasks import import_object
 from vitac.tasks.config import ObservationSpec
 from vitac.utils.instantiate import instantiate
 
@@ -18,6 +19,11 @@ def build_policy(encoder, fusion, head, reg, critic, obs_specs: dict[str, Observ
     if reg.get("lambda_sym", 0) and not {"left", "right"} <= set(roles.values()):
         raise ValueError(f"reg=sym is not allowed with obs={obs_name}: the symmetry prior compares the two pads "
                          f"(roles ['left', 'right']) and the actor's images are {roles or '(none)'}; use reg=none")
+    fusion_cls = import_object(fusion["_target_"])
+    if reg.get("lambda_sym", 0) and reg.get("placement") == "self_attention" and not hasattr(fusion_cls, "self_attend"):
+        raise ValueError(f"reg.placement='self_attention' is not allowed with fusion="
+                         f"{getattr(fusion_cls, 'config_name', fusion['_target_'])}: only fusion=cmt has a tactile "
+                         "self-attention; use reg.placement=encoder")
     has_critic = critic is not None and critic.get("_target_") is not None
     return VisuoTactilePolicy(
         obs_specs=dict(obs_specs),

@@ -89,11 +89,15 @@ class CrossModalTransformer(nn.Module):
         self.cross_norm = nn.LayerNorm(embed_dim)
         self.out_dim = 2 * embed_dim
 
-    def forward(self, embeddings: dict) -> torch.Tensor:
-        vision, left, right = (embeddings[role] for role in ROLE_ORDER)
+    def self_attend(self, left: torch.Tensor, right: torch.Tensor) -> torch.Tensor:
+        """The tactile tokens after self-attention (eq. 3), (B, 2, D): [z_L; z_R]."""
         tactile = torch.stack([left, right], dim=1) + self.side  # (B, 2, D)
         z_t, _ = self.self_attn(tactile, tactile, tactile, need_weights=False)
-        z_t = self.self_norm(tactile + z_t)
+        return self.self_norm(tactile + z_t)
+
+    def forward(self, embeddings: dict) -> torch.Tensor:
+        vision, left, right = (embeddings[role] for role in ROLE_ORDER)
+        z_t = self.self_attend(left, right)
         query = vision.unsqueeze(1)  # (B, 1, D)
         z_vt, _ = self.cross_attn(query, z_t, z_t, need_weights=False)
         z_vt = self.cross_norm(query + z_vt).squeeze(1)

@@ -60,7 +60,8 @@ class VisuoTactilePolicy(nn.Module):
         self.head = head(in_dim=features)
         self.regularizer = regularizer
         self.uses_symmetry = regularizer.active and {"left", "right"} <= set(self.roles.values())
-        self._right_key = next((k for k, role in self.roles.items() if role == "right"), None)
+        self._pad_keys = tuple(next((k for k, role in self.roles.items() if role == side), None)
+                               for side in ("left", "right"))
         self.critic = None
         if critic is not None:
             self.critic = critic(in_dim=critic_state_dim, memory_dim=self.head.hidden)
@@ -138,8 +139,14 @@ class VisuoTactilePolicy(nn.Module):
             value = self.critic(self.critic_normalizer(critic_state), own).reshape(lead)
         if not with_aux:
             return mean, log_std, value, state
-        sym = None
-        if self.uses_symmetry:
-            right = self._scaled(self._right_key, obs[self._right_key].reshape(-1, *obs[self._right_key].shape[len(lead):]))
-            sym = self.regularizer.per_sample(embeddings["left"], self.encoders[self._right_key], right)
+        sym = self._symmetry_loss(obs, lead, embeddings) if self.uses_symmetry else None
         return mean, log_std, value, state, sym
+
+    def _symmetry_loss(self, obs: dict, lead: tuple, embeddings: dict) -> torch.Tensor:
+        """The prior's loss per sample, read where `regularizer.placement` says."""
+        images = tuple(self._scaled(k, obs[k].reshape(-1, *obs[k].shape[len(lead):])) for k in self._pad_keys)
+        encoders = tuple(self.encoders[k] for k in self._pad_keys)
+        if self.regularizer.placement == "self_attention":
+            return self.regularizer.per_sample_attended(self.fusion, encoders, images,
+                                                        (embeddings["left"], embeddings["right"]))
+        return self.regularizer.per_sample(embeddings["left"], encoders[1], images[1])
