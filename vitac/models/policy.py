@@ -109,13 +109,15 @@ class VisuoTactilePolicy(nn.Module):
         if self.critic is not None:
             self.critic_normalizer.update(obs["critic_state"])
 
-    def _scaled(self, key: str, image: torch.Tensor) -> torch.Tensor:
+    def _flat_image(self, obs: dict, key: str, lead: tuple) -> torch.Tensor:
+        """Image `key` with its leading (T, B) dims flattened, force fields on their learned scale."""
+        image = obs[key].reshape(-1, *obs[key].shape[len(lead):])
         return self.force_scale(image.float()) if key in self.force_field_keys else image
 
     def _features(self, obs: dict, lead: tuple):
         """Encode (T*B)-flattened observations; returns features (T, B, F) and the image embeddings."""
         flat = lambda x: x.reshape(-1, *x.shape[len(lead):])  # noqa: E731
-        embeddings = {self.roles[k]: self.encoders[k](self._scaled(k, flat(obs[k]))) for k in self.image_keys}
+        embeddings = {self.roles[k]: self.encoders[k](self._flat_image(obs, k, lead)) for k in self.image_keys}
         parts = [self.fusion(embeddings)] if self.fusion is not None else []
         for k in self.vector_keys:
             parts.append(self.vector_encoders[k](self.normalizers[k](flat(obs[k]).float())))
@@ -144,9 +146,10 @@ class VisuoTactilePolicy(nn.Module):
 
     def _symmetry_loss(self, obs: dict, lead: tuple, embeddings: dict) -> torch.Tensor:
         """The prior's loss per sample, read where `regularizer.placement` says."""
-        images = tuple(self._scaled(k, obs[k].reshape(-1, *obs[k].shape[len(lead):])) for k in self._pad_keys)
-        encoders = tuple(self.encoders[k] for k in self._pad_keys)
+        left, right = self._pad_keys
         if self.regularizer.placement == "self_attention":
-            return self.regularizer.per_sample_attended(self.fusion, encoders, images,
-                                                        (embeddings["left"], embeddings["right"]))
-        return self.regularizer.per_sample(embeddings["left"], encoders[1], images[1])
+            return self.regularizer.per_sample_attended(
+                self.fusion, (self.encoders[left], self.encoders[right]),
+                (self._flat_image(obs, left, lead), self._flat_image(obs, right, lead)),
+                (embeddings["left"], embeddings["right"]))
+        return self.regularizer.per_sample(embeddings["left"], self.encoders[right], self._flat_image(obs, right, lead))
