@@ -1,4 +1,4 @@
-"""Train a policy: `python -m vitac.train [overrides]` (conf/config.yaml; docs/training.md). The run itself is
+"""Train a policy: `python -m vitac.train [overrides]` (conf/config.yaml; docs/training.md, docs/running.md). The run itself is
 vitac/training.py, which scripts and tests import."""
 
 from __future__ import annotations
