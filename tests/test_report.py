@@ -184,6 +184,26 @@ def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_check
                      (str(screw / "checkpoints" / "last.ckpt"), str(screw / "checkpoints" / "last.eval.json"), 2_000_000)]
 
 
+
+def test_evaluate_missing_with_unseen_adds_the_unseen_seed_evaluation_once(tmp_path, monkeypatch):
+    from vitac.report import evaluate_missing, table_cells
+
+    sweep = tmp_path / "sweep"
+    fresh = fake_run(sweep, "Wrist", 0, 10)  # neither evaluation yet
+    held_out = fake_run(sweep, "Privileged", 0, 10, successes=episodes(300))  # the held-out one only
+    calls = []
+    monkeypatch.setattr("vitac.evaluate.evaluate", lambda ckpt, **kw: calls.append((kw["out"], kw["seed"])))
+    cells = table_cells(table1.build([sweep], seeds=[0]))
+    assert evaluate_missing(cells, episodes=400, unseen=True) == 3
+    assert sorted(calls) == sorted([(str(fresh / "checkpoints" / "last.eval.json"), 2_000_000),
+                                    (str(fresh / "unseen_seeds_eval.json"), 3_000_000),
+                                    (str(held_out / "unseen_seeds_eval.json"), 3_000_000)])
+    (held_out / "unseen_seeds_eval.json").write_text((held_out / "checkpoints" / "last.eval.json").read_text())
+    calls.clear()
+    cells = table_cells(table1.build([sweep], seeds=[0]))
+    assert evaluate_missing(cells, episodes=400, unseen=True) == 2  # the one with both is left alone
+    assert str(held_out / "unseen_seeds_eval.json") not in [out for out, _ in calls]
+
 def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
     sweep = tmp_path / "screw"
     for seed in range(3):

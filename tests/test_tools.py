@@ -196,6 +196,8 @@ def test_run_summary_names_the_columns_an_older_run_did_not_log_and_refuses_a_fo
     (["-m", "vitac.runs", "plot", "x.csv", "--out", "README.md/curves.png"], "argument --out: README.md/curves.png is"),
     (["-m", "vitac.report", "docs/data/table1_runs", "--out", "README.md/report", "--evaluate"],
      "argument --out: README.md/report is not allowed: the folder README.md/report cannot be created or written"),
+    (["-m", "vitac.report", "docs/data/table1_runs", "--unseen"],
+     "argument --unseen: it is not allowed without --evaluate"),
     (["-m", "vitac.report", "docs/data/table1_runs", "--evaluate", "--qual", "Naive"],
      "argument --qual: 'Naive' is not allowed: expected NAME=CKPT"),
     (["-m", "vitac.report", "docs/data/table1_runs", "--evaluate", "--qual", "Naive=missing.ckpt"],

@@ -1,11 +1,12 @@
 """Table I (markdown, LaTeX, JSON) and the paper's figures from your own runs.
 
-    python -m vitac.report outputs/table1 [--out report] [--seeds 0 1 2] [--min-episodes 400] [--evaluate]
+    python -m vitac.report outputs/table1 [--out report] [--seeds 0 1 2] [--min-episodes 400] [--evaluate [--unseen]]
 
 Reads every run under the given sweep directories (`python -m vitac.train -m +sweep=table1`) as cells of Table I,
 one per row and seed (vitac/analysis/table1.py): a cell counts once its run finished and its last checkpoint was
 evaluated on at least --min-episodes held-out episodes (`checkpoints/last.eval.json`; `--evaluate` runs the
-missing evaluations first, all on the same episodes, so rows are compared episode by episode). Missing and
+missing evaluations first, all on the same episodes, so rows are compared episode by episode; with `--unseen` also on 400 episodes whose seeds no run has used,
+`unseen_seeds_eval.json`). Missing and
 unevaluated cells are shown as such, never as zero. Writes table1.md, table1.tex, table1.json and the figures:
 learning curves against env steps, success against steps to succeed per trial (40 held-out episodes) for naive,
 gated and CMT fusion with density contours (the paper's Fig. "steps"), and, where the directories hold runs of
@@ -28,7 +29,14 @@ import yaml
 
 from vitac.analysis import symmetry, table1
 from vitac.analysis.status import sweep_cells
-from vitac.run_dirs import EVALUATION, last_checkpoint, read_metrics, task_name
+from vitac.run_dirs import (
+    EVALUATION,
+    UNSEEN_EVALUATION,
+    UNSEEN_SEED,
+    last_checkpoint,
+    read_metrics,
+    task_name,
+)
 from vitac.utils.checkpoint import resolve_checkpoint
 from vitac.utils.cli import int_at_least, output_dir, stop_quietly_when_the_reader_closes, tool_entry
 from vitac.utils.records import read_whole, write_json
@@ -54,18 +62,22 @@ def screw_cells(dirs: list[Path], seeds: list[int], min_episodes: int) -> dict[s
             for name, row in SCREW_ROWS.items()}
 
 
-def evaluate_missing(cells: list[dict], episodes: int) -> int:
-    """Evaluate every finished cell without an evaluation of `episodes` episodes; returns how many ran."""
+def evaluate_missing(cells: list[dict], episodes: int, unseen: bool = False) -> int:
+    """Evaluate every finished cell without an evaluation of `episodes` held-out episodes (and, with `unseen`, of
+    as many episodes whose seeds no run has used); returns how many evaluations ran."""
     from vitac.evaluate import evaluate
 
     ran = 0
     for cell in cells:
-        if cell["status"] != "done" or cell["success"] is not None:
-            continue
+        if cell["status"] != "done" or cell["run"] is None or not last_checkpoint(Path(cell["run"])).is_file():
+            continue  # unfinished, or an archived run (it has no checkpoint)
         run = Path(cell["run"])
-        if last_checkpoint(run).is_file():  # an archived run has none
-            evaluate(str(last_checkpoint(run)), episodes=episodes, num_envs=8, num_workers="auto", seed=EVAL_SEED,
-                     out=str(run / EVALUATION))
+        wanted = [(EVAL_SEED, run / EVALUATION)] if cell["success"] is None else []
+        if unseen and cell.get("unseen_success") is None:
+            wanted.append((UNSEEN_SEED, run / UNSEEN_EVALUATION))
+        for seed, out in wanted:
+            evaluate(str(last_checkpoint(run)), episodes=episodes, num_envs=8, num_workers="auto", seed=seed,
+                     out=str(out))
             ran += 1
     return ran
 
@@ -210,6 +222,8 @@ def main(argv=None):
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--min-episodes", type=int_at_least(1), default=400)
     parser.add_argument("--evaluate", action="store_true", help="evaluate finished, unevaluated cells first")
+    parser.add_argument("--unseen", action="store_true",
+                        help="with --evaluate, also on as many episodes whose seeds no run has used (seed 3,000,000)")
     parser.add_argument("--qual", nargs="*", type=named_checkpoint, default=[], metavar="NAME=CKPT",
                         help="policies whose force fields over one held-out episode to draw (the paper's Fig. qual)")
     parser.add_argument("--computation", type=Path, default=Path("docs/data/bench_policy.json"),
@@ -217,12 +231,14 @@ def main(argv=None):
     parser.add_argument("--against", nargs="+", type=Path, default=[], metavar="DIR",
                         help="an earlier table's sweep directories: each row beside its earlier self, paired")
     args = parser.parse_args(argv)
+    if args.unseen and not args.evaluate:
+        parser.error("argument --unseen: it is not allowed without --evaluate (it asks the evaluations for more seeds)")
     for d in args.dirs + args.against:
         if not d.is_dir():
             raise SystemExit(f"{d}: no such directory")
     table = table1.build(args.dirs, args.seeds, args.min_episodes)
     screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
-    if args.evaluate and evaluate_missing(table_cells(table) + sum(screw.values(), []), args.min_episodes):
+    if args.evaluate and evaluate_missing(table_cells(table) + sum(screw.values(), []), args.min_episodes, args.unseen):
         table = table1.build(args.dirs, args.seeds, args.min_episodes)
         screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
     args.out.mkdir(parents=True, exist_ok=True)

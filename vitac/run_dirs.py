@@ -24,6 +24,7 @@ PART_PREFIX = "metrics_part"
 EVALUATION = Path("checkpoints") / "last.eval.json"  # vitac.evaluate's report on the last checkpoint
 # vitac.evaluate's report on 400 episodes whose seeds no run has used (seed=3000000), beside the held-out one
 UNSEEN_EVALUATION = "unseen_seeds_eval.json"
+UNSEEN_SEED = 3_000_000
 TEACHER_RECORD = "teacher.json"  # a distilled run's teacher by content (write_teacher_record)
 ARCHIVE_RECORD = "run.json"  # in a run's archive (vitac/analysis/archive.py): the iterations its checkpoint held
 MIN_FREE_BYTES = 200 * 2**20  # a run's checkpoints (up to ~14 MB each), metrics and videos, with room to spare
