@@ -184,7 +184,6 @@ def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_check
                      (str(screw / "checkpoints" / "last.ckpt"), str(screw / "checkpoints" / "last.eval.json"), 2_000_000)]
 
 
-
 def test_evaluate_missing_with_unseen_adds_the_unseen_seed_evaluation_once(tmp_path, monkeypatch):
     from vitac.report import evaluate_missing, table_cells
 
@@ -203,6 +202,7 @@ def test_evaluate_missing_with_unseen_adds_the_unseen_seed_evaluation_once(tmp_p
     cells = table_cells(table1.build([sweep], seeds=[0]))
     assert evaluate_missing(cells, episodes=400, unseen=True) == 2  # the one with both is left alone
     assert str(held_out / "unseen_seeds_eval.json") not in [out for out, _ in calls]
+
 
 def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
     sweep = tmp_path / "screw"

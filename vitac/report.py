@@ -5,9 +5,9 @@
 Reads every run under the given sweep directories (`python -m vitac.train -m +sweep=table1`) as cells of Table I,
 one per row and seed (vitac/analysis/table1.py): a cell counts once its run finished and its last checkpoint was
 evaluated on at least --min-episodes held-out episodes (`checkpoints/last.eval.json`; `--evaluate` runs the
-missing evaluations first, all on the same episodes, so rows are compared episode by episode; with `--unseen` also on 400 episodes whose seeds no run has used,
-`unseen_seeds_eval.json`). Missing and
-unevaluated cells are shown as such, never as zero. Writes table1.md, table1.tex, table1.json and the figures:
+missing evaluations first, all on the same episodes, so rows are compared episode by episode; with `--unseen`
+also on as many episodes whose seeds no run has used, `unseen_seeds_eval.json`). Missing and unevaluated cells are shown as such, never as zero.
+Writes table1.md, table1.tex, table1.json and the figures:
 learning curves against env steps, success against steps to succeed per trial (40 held-out episodes) for naive,
 gated and CMT fusion with density contours (the paper's Fig. "steps"), and, where the directories hold runs of
 experiment=screw/*, the paper's screw figure (screw.png, screw.json); and the paper's computation table beside
@@ -69,9 +69,9 @@ def evaluate_missing(cells: list[dict], episodes: int, unseen: bool = False) -> 
 
     ran = 0
     for cell in cells:
-        if cell["status"] != "done" or cell["run"] is None or not last_checkpoint(Path(cell["run"])).is_file():
+        run = Path(cell["run"]) if cell["status"] == "done" else None
+        if run is None or not last_checkpoint(run).is_file():
             continue  # unfinished, or an archived run (it has no checkpoint)
-        run = Path(cell["run"])
         wanted = [(EVAL_SEED, run / EVALUATION)] if cell["success"] is None else []
         if unseen and cell.get("unseen_success") is None:
             wanted.append((UNSEEN_SEED, run / UNSEEN_EVALUATION))
