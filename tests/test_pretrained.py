@@ -93,6 +93,15 @@ def test_the_off_thread_screw_teacher_is_its_archived_run_on_the_tightening_only
     assert report["outcomes"]["threaded on and seated"] == 380 and report["episodes"] == 400
 
 
+def test_the_insert_then_screw_teacher_is_its_archived_900_iteration_run():
+    _, _, settings = load_policy("pretrained/screw_insert_privileged", key="teacher_ckpt")
+    assert settings["start"] == "off_thread" and settings["episode_steps"] == 600
+    assert settings["randomization"]["start_offset_high"] == [0.03, 0.03]  # carried from 30 mm off the axis
+    assert load_checkpoint("pretrained/screw_insert_privileged")["env_steps"] == 921_600  # 900 x 32 x 32
+    report = json.loads(Path("docs/data/results/screw_insert/privileged_seed0/checkpoints/last.eval.json").read_text())
+    assert report["outcomes"]["threaded on and seated"] == 288 and report["episodes"] == 400
+
+
 def test_a_teacher_whose_weights_do_not_fit_its_config_is_refused_naming_the_key(tmp_path):
     """A checkpoint is rebuilt from its own stored config, so a teacher of another architecture than the student
     is fine; weights that do not fit that config (a hand-edited file) are refused before anything is simulated."""
