@@ -226,9 +226,11 @@ def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
 
 
 @pytest.mark.parametrize(("record", "runs"), [("screw.json", "docs/data/screw_runs"),
-                                              ("screw_offthread.json", "docs/data/results/screw_offthread")])
+                                              ("screw_offthread.json", "docs/data/results/screw_offthread"),
+                                              ("screw_insert.json", "docs/data/results/screw_insert")])
 def test_the_committed_screw_records_are_what_the_report_makes_of_the_committed_runs(tmp_path, monkeypatch, record, runs):
-    """docs/data/screw.json and screw_offthread.json: `python -m vitac.report <runs> --out <dir>`'s screw.json."""
+    """docs/data/screw.json, screw_offthread.json and screw_insert.json: `python -m vitac.report <runs> --out <dir>`'s
+    screw.json."""
     from vitac.report import screw_cells, screw_figure
 
     monkeypatch.chdir(ROOT)
