@@ -24,14 +24,14 @@ PER_ITERATION = 2 * 16  # the synthetic runs' envs x horizon
 
 
 def fake_run(sweep: Path, row: str, seed: int, done: int, budget: int = 10, successes: list | None = None,
-             init_ckpt: str | None = None) -> Path:
+             init_ckpt: str | None = None, task: str | None = None) -> Path:
     """A run directory as training and vitac.evaluate leave it: config, metrics, a checkpoint holding `done`
     iterations, and (given `successes`, one 0/1 per episode) an evaluation of its last checkpoint."""
-    run = sweep / f"{row.replace(' ', '_')},seed={seed}"
+    run = sweep / f"{row.replace(' ', '_')},seed={seed}" / (task or "")
     (run / "csv").mkdir(parents=True)
     (run / "checkpoints").mkdir()
     config = dict(row=row, seed=seed, trainer=dict(iterations=budget), envs=dict(num_envs=2), algo=dict(horizon=16),
-                  init_ckpt=init_ckpt)
+                  init_ckpt=init_ckpt, **(dict(task=dict(name=task)) if task else {}))
     (run / "config.yaml").write_text(yaml.safe_dump(config))
     rows = ["epoch,charts/env_steps,charts/SPS,eval/success_rate"]
     rows += [f"{i},{(i + 1) * PER_ITERATION},{PER_ITERATION / 36.0},0.5" for i in range(done)]  # 36 s an iteration
@@ -168,7 +168,7 @@ def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_
 def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_checkpoint_and_skips_archives(
         tmp_path, monkeypatch):
     from vitac.analysis.archive import archive
-    from vitac.report import evaluate_missing, screw_cells, table_cells
+    from vitac.report import evaluate_missing, screw_cells, screw_runs, table_cells
 
     sweep = tmp_path / "sweep"
     run = fake_run(sweep, "Wrist", 0, 10)
@@ -178,7 +178,7 @@ def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_check
     calls = []
     monkeypatch.setattr("vitac.evaluate.evaluate", lambda ckpt, **kw: calls.append((ckpt, kw["out"], kw["seed"])))
     screw = fake_run(sweep, "Screw: wrist", 2, 10)  # the screw figure's cells are evaluated too
-    cells = table_cells(table1.build([sweep], seeds=[0, 1, 2])) + sum(screw_cells([sweep], [0, 1, 2], 400).values(), [])
+    cells = table_cells(table1.build([sweep], seeds=[0, 1, 2])) + screw_runs(screw_cells([sweep], [0, 1, 2], 400))
     assert evaluate_missing(cells, episodes=400) == 2
     assert calls == [(str(run / "checkpoints" / "last.ckpt"), str(run / "checkpoints" / "last.eval.json"), 2_000_000),
                      (str(screw / "checkpoints" / "last.ckpt"), str(screw / "checkpoints" / "last.eval.json"), 2_000_000)]
@@ -207,9 +207,9 @@ def test_evaluate_missing_with_unseen_adds_the_unseen_seed_evaluation_once(tmp_p
 def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
     sweep = tmp_path / "screw"
     for seed in range(3):
-        fake_run(sweep, "Screw: tactile", seed, 10, successes=episodes(400 - seed))
-    fake_run(sweep, "Screw: privileged", 0, 10, successes=episodes(300))
-    fake_run(sweep, "Screw: CMT + sym", 1, 10, successes=episodes(396))  # a fusion policy: drawn once it has a run
+        fake_run(sweep, "Screw: tactile", seed, 10, successes=episodes(400 - seed), task="screw")
+    fake_run(sweep, "Screw: privileged", 0, 10, successes=episodes(300), task="screw")
+    fake_run(sweep, "Screw: CMT + sym", 1, 10, successes=episodes(396), task="screw")  # a fusion policy: drawn once run
     result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(tmp_path / "out")], cwd=ROOT,
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
@@ -218,24 +218,45 @@ def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
                                                 "CMT + sym": [99.0]}
     assert data["steps_to_success_per_seed"] == {"Privileged": [100.0], "Wrist-camera": [], "Tactile": [100.0, 101.0, 102.0],
                                                  "CMT + sym": [101.0]}
-    assert data["task"] == "insertion"  # fake runs name no task: read as the default's
+    assert data["task"] == "screw"
     # every pair on the seeds both have: tactile's seed 0 (400 of 400) against privileged's (300) and CMT + sym's seed 1
     assert [(p["first"], p["second"], p["episodes"], p["only_first"], p["only_second"]) for p in data["paired"]] == [
         ("Privileged", "Tactile", 400, 0, 100), ("Tactile", "CMT + sym", 400, 3, 0)]
     assert (tmp_path / "out" / "screw.png").stat().st_size > 0
 
 
-@pytest.mark.parametrize(("record", "runs"), [("screw.json", "docs/data/screw_runs"),
-                                              ("screw_offthread.json", "docs/data/results/screw_offthread"),
-                                              ("screw_insert.json", "docs/data/results/screw_insert")])
-def test_the_committed_screw_records_are_what_the_report_makes_of_the_committed_runs(tmp_path, monkeypatch, record, runs):
+def test_report_draws_one_screw_figure_per_task_when_the_runs_mix_tasks(tmp_path):
+    """Runs of two screw tasks under one directory (the same rows and seeds) are two figures, each of its own task's
+    runs only, never one figure mixing them."""
+    sweep = tmp_path / "screw"
+    fake_run(sweep, "Screw: tactile", 0, 10, successes=episodes(400), task="screw_offthread")
+    fake_run(sweep, "Screw: tactile", 0, 10, successes=episodes(300), task="screw_insert")
+    fake_run(sweep, "Screw: wrist", 0, 10, successes=episodes(200), task="screw_insert")
+    result = subprocess.run([sys.executable, "-m", "vitac.report", str(sweep), "--out", str(tmp_path / "out")], cwd=ROOT,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    offthread, insert = (json.loads((tmp_path / "out" / f"{t}.json").read_text()) for t in ("screw_offthread", "screw_insert"))
+    assert offthread["task"] == "screw_offthread" and insert["task"] == "screw_insert"
+    assert offthread["success_percent_per_seed"]["Tactile"] == [100.0]
+    assert offthread["success_percent_per_seed"]["Wrist-camera"] == []
+    assert insert["success_percent_per_seed"]["Tactile"] == [75.0]
+    assert insert["success_percent_per_seed"]["Wrist-camera"] == [50.0]
+    assert not (tmp_path / "out" / "screw.json").exists()
+    assert all((tmp_path / "out" / f"{t}.png").stat().st_size > 0 for t in ("screw_offthread", "screw_insert"))
+
+
+@pytest.mark.parametrize(("task", "runs"), [("screw", "docs/data/screw_runs"),
+                                            ("screw_offthread", "docs/data/results/screw_offthread"),
+                                            ("screw_insert", "docs/data/results/screw_insert")])
+def test_the_committed_screw_records_are_what_the_report_makes_of_the_committed_runs(tmp_path, monkeypatch, task, runs):
     """docs/data/screw.json, screw_offthread.json and screw_insert.json: `python -m vitac.report <runs> --out <dir>`'s
-    screw.json."""
+    <task>.json."""
     from vitac.report import screw_cells, screw_figure
 
     monkeypatch.chdir(ROOT)
-    screw_figure(screw_cells([Path(runs)], [0, 1, 2], 400), 400, tmp_path)
-    assert json.loads((tmp_path / "screw.json").read_text()) == json.loads((ROOT / "docs/data" / record).read_text())
+    assert list(screw_cells([Path(runs)], [0, 1, 2], 400)) == [task]
+    screw_figure(task, screw_cells([Path(runs)], [0, 1, 2], 400)[task], 400, tmp_path)
+    assert json.loads((tmp_path / f"{task}.json").read_text()) == json.loads((ROOT / "docs/data" / f"{task}.json").read_text())
 
 
 def test_report_draws_both_pads_force_fields_over_an_episode_for_each_policy(tmp_path):

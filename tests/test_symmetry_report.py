@@ -14,7 +14,8 @@ from vitac.analysis import symmetry
 
 # every evaluated wrist + tactile run committed that bears on the prior (docs/results.md names the command)
 SYMMETRY_RUNS = ("docs/data/table1_runs", "docs/data/results/contact_teacher", "docs/data/results/residual_teacher",
-                 "docs/data/results/screw_offthread", "docs/data/results/symmetry_kickstart")
+                 "docs/data/results/screw_offthread", "docs/data/results/screw_insert",
+                 "docs/data/results/symmetry_kickstart")
 
 
 def sym_run(sweep, seed, lambda_sym, successes, algo="vitac.algos.dagger.DAgger", asymmetry=None, obs="wrist_tactile",

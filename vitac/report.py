@@ -10,7 +10,8 @@ also on as many episodes whose seeds no run has used, `unseen_seeds_eval.json`).
 Writes table1.md, table1.tex, table1.json and the figures:
 learning curves against env steps, success against steps to succeed per trial (40 held-out episodes) for naive,
 gated and CMT fusion with density contours (the paper's Fig. "steps"), and, where the directories hold runs of
-experiment=screw/*, the paper's screw figure (screw.png, screw.json); and the paper's computation table beside
+experiment=screw/*, the paper's screw figure for each screw task among them (<task>.png and <task>.json: screw,
+screw_offthread, screw_insert); and the paper's computation table beside
 ours from the policy benchmark's record (computation.md, from --computation, docs/data/bench_policy.json by
 default); with `--qual "Naive=<ckpt>" "CMT + sym=<ckpt>"`, both pads' force fields over one held-out episode of
 each (force_fields.png, the paper's Fig. "qual"); with `--against <earlier sweep dirs>`, every row beside its
@@ -25,17 +26,14 @@ import argparse
 import json
 from pathlib import Path
 
-import yaml
-
 from vitac.analysis import symmetry, table1
-from vitac.analysis.status import sweep_cells
+from vitac.analysis.status import run_statuses, sweep_cells
 from vitac.run_dirs import (
     EVALUATION,
     UNSEEN_EVALUATION,
     UNSEEN_SEED,
     last_checkpoint,
     read_metrics,
-    task_name,
 )
 from vitac.utils.checkpoint import resolve_checkpoint
 from vitac.utils.cli import int_at_least, output_dir, stop_quietly_when_the_reader_closes, tool_entry
@@ -55,11 +53,19 @@ def table_cells(table: dict) -> list[dict]:
     return [cell for row in table["rows"] for cell in row["seeds"].values()]
 
 
-def screw_cells(dirs: list[Path], seeds: list[int], min_episodes: int) -> dict[str, list[dict]]:
-    """{policy name: its evaluated cells, one per seed} for the paper's screw figure (runs of experiment=screw/*)."""
-    cells = sweep_cells(dirs, list(SCREW_ROWS.values()), seeds)
-    return {name: [table1.evaluated(cells[(row, seed)], min_episodes) for seed in seeds]
-            for name, row in SCREW_ROWS.items()}
+def screw_cells(dirs: list[Path], seeds: list[int], min_episodes: int) -> dict[str, dict[str, list[dict]]]:
+    """{task: {policy name: its evaluated cells, one per seed}} for the paper's screw figure, one figure per screw task
+    (screw, screw_offthread, screw_insert) found among the runs of experiment=screw/*."""
+    rows = list(SCREW_ROWS.values())
+    tasks = sorted({s["task"] for s in run_statuses(dirs) if s["row"] in rows})
+    by_task = {task: sweep_cells(dirs, rows, seeds, task) for task in tasks}
+    return {task: {name: [table1.evaluated(cells[(row, seed)], min_episodes) for seed in seeds]
+                   for name, row in SCREW_ROWS.items()} for task, cells in by_task.items()}
+
+
+def screw_runs(screw: dict[str, dict[str, list[dict]]]) -> list[dict]:
+    """Every cell of screw_cells(), as evaluated() gives it."""
+    return [cell for cells in screw.values() for seeds in cells.values() for cell in seeds]
 
 
 def evaluate_missing(cells: list[dict], episodes: int, unseen: bool = False) -> int:
@@ -125,10 +131,10 @@ def figures(table: dict, out: Path) -> list[Path]:
     return paths
 
 
-def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> Path | None:
-    """The paper's screw figure from screw_cells(): held-out success per policy, one dot per seed and the mean as a
-    bar, and beside it the mean control steps to screw down (where all policies succeed, speed is what differs);
-    None when no screw run was evaluated."""
+def screw_figure(task: str, cells: dict[str, list[dict]], min_episodes: int, out: Path) -> Path | None:
+    """The paper's screw figure for one task from screw_cells(): held-out success per policy, one dot per seed and the
+    mean as a bar, and beside it the mean control steps to screw down (where all policies succeed, speed is what
+    differs), as <task>.png with its record <task>.json; None when none of the task's runs was evaluated."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -153,26 +159,15 @@ def screw_figure(cells: dict[str, list[dict]], min_episodes: int, out: Path) -> 
             ax_steps.scatter([i] * len(times), times, color="k", s=12, zorder=3)
     labels = [f"{n}\n({len(v)} seed{'s' if len(v) != 1 else ''})" for n, v in results.items()]
     ax.set_xticks(range(len(results)), labels)
-    task = screw_task(done)
     ax.set(ylabel="held-out success (%)", ylim=(0, 105), title=f"task={task}")
     ax_steps.set_xticks(range(len(results)), labels)
     ax_steps.set(ylabel="control steps to screw down (mean)", title="how fast, where it succeeds")
     for a in (ax, ax_steps):
         a.tick_params(axis="x", labelsize=8)
-    write_json(out / "screw.json", dict(task=task, success_percent_per_seed=results,
-                                        steps_to_success_per_seed=steps, paired=screw_pairs(cells),
-                                        min_episodes=min_episodes))
-    return _save(fig, out / "screw.png")
-
-
-def screw_task(done: dict[str, list[dict]]) -> str:
-    """The screw runs' task (screw, screw_offthread, screw_insert), from their configs; refused when they mix tasks,
-    whose rows would otherwise share a figure."""
-    tasks = {task_name(read_whole(Path(c["run"]) / "config.yaml", yaml.safe_load, "a run's config.yaml"))
-             for cells in done.values() for c in cells}
-    if len(tasks) > 1:
-        raise SystemExit(f"the screw runs found mix tasks {sorted(tasks)}: report each task's runs on their own")
-    return tasks.pop() if tasks else "screw"
+    write_json(out / f"{task}.json", dict(task=task, success_percent_per_seed=results,
+                                          steps_to_success_per_seed=steps, paired=screw_pairs(cells),
+                                          min_episodes=min_episodes))
+    return _save(fig, out / f"{task}.png")
 
 
 def screw_pairs(cells: dict[str, list[dict]]) -> list[dict]:
@@ -238,7 +233,7 @@ def main(argv=None):
             raise SystemExit(f"{d}: no such directory")
     table = table1.build(args.dirs, args.seeds, args.min_episodes)
     screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
-    if args.evaluate and evaluate_missing(table_cells(table) + sum(screw.values(), []), args.min_episodes, args.unseen):
+    if args.evaluate and evaluate_missing(table_cells(table) + screw_runs(screw), args.min_episodes, args.unseen):
         table = table1.build(args.dirs, args.seeds, args.min_episodes)
         screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -255,8 +250,7 @@ def main(argv=None):
         named = dict(args.qual)
         episodes = {name: force_fields.record_fields(ckpt, EVAL_SEED) for name, ckpt in named.items()}
         paths.append(force_fields.figure(episodes, args.out / "force_fields.png"))
-    screw_png = screw_figure(screw, args.min_episodes, args.out)
-    paths += [screw_png] if screw_png else []
+    paths += [png for task, cells in screw.items() if (png := screw_figure(task, cells, args.min_episodes, args.out))]
     configurations = symmetry.configurations(args.dirs, args.min_episodes)
     if configurations:
         write_json(args.out / "symmetry.json", dict(configurations=configurations, min_episodes=args.min_episodes))

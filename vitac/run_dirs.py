@@ -145,7 +145,7 @@ def task_name(cfg: dict) -> str:
 
 
 def run_status(run: Path) -> dict:
-    """A run directory's (or its archive's) row, seed, status (done, partial, missing: no checkpoint yet), completed
+    """A run directory's (or its archive's) row, seed, task, status (done, partial, missing: no checkpoint yet), completed
     iterations of its budget, env steps, and the checkpoint it was warm-started from (None if it started fresh)."""
     cfg = read_whole(Path(run) / "config.yaml", yaml.safe_load)
     iterations = int(cfg["trainer"]["iterations"])
@@ -155,8 +155,8 @@ def run_status(run: Path) -> dict:
         done = int(read_whole(Path(run) / ARCHIVE_RECORD, json.load, "a run archive's record")["iterations"])
     steps = done * int(cfg["envs"]["num_envs"]) * int(cfg["algo"]["horizon"])
     status = "done" if done >= iterations else "partial" if done else "missing"
-    return dict(run=str(run), row=cfg.get("row"), seed=cfg.get("seed"), status=status, iterations=done,
-                budget=iterations, env_steps=steps, init_ckpt=cfg.get("init_ckpt"))
+    return dict(run=str(run), row=cfg.get("row"), seed=cfg.get("seed"), task=task_name(cfg), status=status,
+                iterations=done, budget=iterations, env_steps=steps, init_ckpt=cfg.get("init_ckpt"))
 
 
 def report_run(out: Path, metrics: dict, env_steps: int, preset: str, wandb: bool) -> dict:

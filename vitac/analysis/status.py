@@ -33,20 +33,26 @@ def expected_rows(pattern: str) -> list[str]:
     return sorted(rows, key=lambda row: paper_order.get(row, len(paper_order)))  # stable: the others keep name order
 
 
-def sweep_cells(dirs: list[Path], rows: list[str], seeds: list[int]) -> dict:
-    """{(row, seed): run status} for every expected cell; a missing cell has status "missing" and no run."""
-    cells = {(row, seed): dict(row=row, seed=seed, status="missing", iterations=0, budget=None, env_steps=0, run=None)
-             for row in rows for seed in seeds}
+def run_statuses(dirs: list[Path]) -> list[dict]:
+    """run_status() of every run under the given directories."""
     for d in dirs:
         if not d.is_dir():
             raise SystemExit(f"{d}: no such directory")
-        for config in sorted(d.rglob("config.yaml")):
-            if config.parent.name == ".hydra":
-                continue
-            status = run_status(config.parent)
-            key = (status["row"], status["seed"])
-            if key in cells and (cells[key]["run"] is None or status["iterations"] > cells[key]["iterations"]):
-                cells[key] = status
+    return [run_status(config.parent) for d in dirs for config in sorted(d.rglob("config.yaml"))
+            if config.parent.name != ".hydra"]
+
+
+def sweep_cells(dirs: list[Path], rows: list[str], seeds: list[int], task: str | None = None) -> dict:
+    """{(row, seed): run status} for every expected cell (of `task`'s runs only, when given); a missing cell has
+    status "missing" and no run."""
+    cells = {(row, seed): dict(row=row, seed=seed, status="missing", iterations=0, budget=None, env_steps=0, run=None)
+             for row in rows for seed in seeds}
+    for status in run_statuses(dirs):
+        key = (status["row"], status["seed"])
+        if task is not None and status["task"] != task:
+            continue
+        if key in cells and (cells[key]["run"] is None or status["iterations"] > cells[key]["iterations"]):
+            cells[key] = status
     return cells
 
 
