@@ -27,7 +27,7 @@ import json
 from pathlib import Path
 
 from vitac.analysis import symmetry, table1
-from vitac.analysis.status import run_statuses, sweep_cells
+from vitac.analysis.status import cells_of, run_statuses
 from vitac.run_dirs import (
     EVALUATION,
     UNSEEN_EVALUATION,
@@ -57,8 +57,9 @@ def screw_cells(dirs: list[Path], seeds: list[int], min_episodes: int) -> dict[s
     """{task: {policy name: its evaluated cells, one per seed}} for the paper's screw figure, one figure per screw task
     (screw, screw_offthread, screw_insert) found among the runs of experiment=screw/*."""
     rows = list(SCREW_ROWS.values())
-    tasks = sorted({s["task"] for s in run_statuses(dirs) if s["row"] in rows})
-    by_task = {task: sweep_cells(dirs, rows, seeds, task) for task in tasks}
+    statuses = [s for s in run_statuses(dirs) if s["row"] in rows]  # one scan of the runs, grouped by task
+    by_task = {task: cells_of([s for s in statuses if s["task"] == task], rows, seeds)
+               for task in sorted({s["task"] for s in statuses})}
     return {task: {name: [table1.evaluated(cells[(row, seed)], min_episodes) for seed in seeds]
                    for name, row in SCREW_ROWS.items()} for task, cells in by_task.items()}
 

@@ -42,15 +42,18 @@ def run_statuses(dirs: list[Path]) -> list[dict]:
             if config.parent.name != ".hydra"]
 
 
-def sweep_cells(dirs: list[Path], rows: list[str], seeds: list[int], task: str | None = None) -> dict:
-    """{(row, seed): run status} for every expected cell (of `task`'s runs only, when given); a missing cell has
-    status "missing" and no run."""
+def sweep_cells(dirs: list[Path], rows: list[str], seeds: list[int]) -> dict:
+    """cells_of() the runs under the given directories."""
+    return cells_of(run_statuses(dirs), rows, seeds)
+
+
+def cells_of(statuses: list[dict], rows: list[str], seeds: list[int]) -> dict:
+    """{(row, seed): run status} for every expected cell; of several runs of a cell the furthest trained; a missing
+    cell has status "missing" and no run."""
     cells = {(row, seed): dict(row=row, seed=seed, status="missing", iterations=0, budget=None, env_steps=0, run=None)
              for row in rows for seed in seeds}
-    for status in run_statuses(dirs):
+    for status in statuses:
         key = (status["row"], status["seed"])
-        if task is not None and status["task"] != task:
-            continue
         if key in cells and (cells[key]["run"] is None or status["iterations"] > cells[key]["iterations"]):
             cells[key] = status
     return cells
