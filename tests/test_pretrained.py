@@ -102,6 +102,14 @@ def test_the_insert_then_screw_teacher_is_its_archived_900_iteration_run():
     assert report["outcomes"]["threaded on and seated"] == 288 and report["episodes"] == 400
 
 
+def test_the_continued_insert_then_screw_teacher_starts_from_the_shipped_one_and_is_its_archived_run():
+    config = yaml.safe_load(Path("docs/data/results/screw_insert_cont/privileged_seed0/config.yaml").read_text())
+    assert config["init_ckpt"] == "pretrained/screw_insert_privileged" and config["trainer"]["iterations"] == 500
+    assert load_checkpoint("pretrained/screw_insert_privileged_1400")["env_steps"] == 512_000  # 500 x 32 x 32
+    report = json.loads(Path("docs/data/results/screw_insert_cont/privileged_seed0/checkpoints/last.eval.json").read_text())
+    assert report["outcomes"]["threaded on and seated"] == 341 and report["episodes"] == 400
+
+
 def test_a_teacher_whose_weights_do_not_fit_its_config_is_refused_naming_the_key(tmp_path):
     """A checkpoint is rebuilt from its own stored config, so a teacher of another architecture than the student
     is fine; weights that do not fit that config (a hand-edited file) are refused before anything is simulated."""
