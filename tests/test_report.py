@@ -16,6 +16,7 @@ import yaml
 
 from tests.conftest import CONF, compose_config
 from vitac.analysis import table1
+from vitac.analysis.status import run_statuses
 from vitac.run_dirs import read_metrics
 from vitac.training import train
 
@@ -103,8 +104,8 @@ def test_a_table_beside_an_earlier_one_pairs_each_row_with_its_earlier_self(tmp_
     now = fake_run(tmp_path / "now", cmt, 0, 20, budget=20, successes=episodes(380))  # 20 more, none lost
     (now / "teacher.json").write_text(json.dumps(dict(sha256="ab12cd34" + "0" * 56, env_steps=5_000_000)))
     (now / "unseen_seeds_eval.json").write_text(json.dumps(dict(episodes=400, success_rate=0.9325)))
-    rows = {r["row"]: r for r in table1.versus(table1.build([tmp_path / "now"], [0]),
-                                               table1.build([tmp_path / "before"], [0]))}
+    rows = {r["row"]: r for r in table1.versus(table1.build(run_statuses([tmp_path / "now"]), [0]),
+                                               table1.build(run_statuses([tmp_path / "before"]), [0]))}
     assert set(rows) == {cmt, "Tactile"}  # rows evaluated in neither table are left out
     assert (rows[cmt]["now"]["mean"], rows[cmt]["before"]["mean"]) == (95.0, 90.0)
     assert (rows[cmt]["paired"]["only_first"], rows[cmt]["paired"]["only_second"]) == (20, 0)
@@ -123,7 +124,8 @@ def test_the_committed_table_from_the_97_percent_teacher_is_the_report_of_its_ru
     committed = json.loads((ROOT / "docs/data/versus_97_teacher.json").read_text())
     now, before = ([Path(d) for d in committed[side]] for side in ("now", "before"))
     assert committed["now"] == ["docs/data/results/residual_teacher"] and committed["before"] == ["docs/data/table1_runs"]
-    made = table1.versus(table1.build(now, [0, 1, 2]), table1.build(before, [0, 1, 2]))
+    made = table1.versus(table1.build(run_statuses(now), [0, 1, 2]),
+                         table1.build(run_statuses(before), [0, 1, 2]))
     assert json.loads(json.dumps(made)) == committed["rows"]
 
 
@@ -145,12 +147,12 @@ def test_an_archived_run_reads_as_the_run_once_its_directory_and_checkpoint_are_
     runs = [fake_run(sweep, "Wrist", 0, 10, successes=episodes(300)), fake_run(sweep, "Tactile", 1, 4)]
     (runs[0] / "teacher.json").write_text('{"sha256": "0f"}')  # a distilled run's teacher goes with it
     (runs[0] / "unseen_seeds_eval.json").write_text('{"episodes": 400, "success_rate": 0.7}')  # and its unseen seeds
-    before = table1.build([sweep], seeds=[0, 1])
+    before = table1.build(run_statuses([sweep]), seeds=[0, 1])
     for run in runs:
         archive(run, tmp_path / "archive" / run.name)
     shutil.rmtree(sweep)
     assert (tmp_path / "archive" / runs[0].name / "teacher.json").read_text() == '{"sha256": "0f"}'
-    after = table1.build([tmp_path / "archive"], seeds=[0, 1])
+    after = table1.build(run_statuses([tmp_path / "archive"]), seeds=[0, 1])
     assert not list((tmp_path / "archive").rglob("*.ckpt"))
     for row_before, row_after in zip(before["rows"], after["rows"], strict=True):
         for seed, cell in row_before["seeds"].items():
@@ -178,7 +180,8 @@ def test_evaluate_missing_evaluates_finished_unevaluated_runs_beside_their_check
     calls = []
     monkeypatch.setattr("vitac.evaluate.evaluate", lambda ckpt, **kw: calls.append((ckpt, kw["out"], kw["seed"])))
     screw = fake_run(sweep, "Screw: wrist", 2, 10)  # the screw figure's cells are evaluated too
-    cells = table_cells(table1.build([sweep], seeds=[0, 1, 2])) + screw_runs(screw_cells([sweep], [0, 1, 2], 400))
+    statuses = run_statuses([sweep])
+    cells = table_cells(table1.build(statuses, seeds=[0, 1, 2])) + screw_runs(screw_cells(statuses, [0, 1, 2], 400))
     assert evaluate_missing(cells, episodes=400) == 2
     assert calls == [(str(run / "checkpoints" / "last.ckpt"), str(run / "checkpoints" / "last.eval.json"), 2_000_000),
                      (str(screw / "checkpoints" / "last.ckpt"), str(screw / "checkpoints" / "last.eval.json"), 2_000_000)]
@@ -192,14 +195,14 @@ def test_evaluate_missing_with_unseen_adds_the_unseen_seed_evaluation_once(tmp_p
     held_out = fake_run(sweep, "Privileged", 0, 10, successes=episodes(300))  # the held-out one only
     calls = []
     monkeypatch.setattr("vitac.evaluate.evaluate", lambda ckpt, **kw: calls.append((kw["out"], kw["seed"])))
-    cells = table_cells(table1.build([sweep], seeds=[0]))
+    cells = table_cells(table1.build(run_statuses([sweep]), seeds=[0]))
     assert evaluate_missing(cells, episodes=400, unseen=True) == 3
     assert sorted(calls) == sorted([(str(fresh / "checkpoints" / "last.eval.json"), 2_000_000),
                                     (str(fresh / "unseen_seeds_eval.json"), 3_000_000),
                                     (str(held_out / "unseen_seeds_eval.json"), 3_000_000)])
     (held_out / "unseen_seeds_eval.json").write_text((held_out / "checkpoints" / "last.eval.json").read_text())
     calls.clear()
-    cells = table_cells(table1.build([sweep], seeds=[0]))
+    cells = table_cells(table1.build(run_statuses([sweep]), seeds=[0]))
     assert evaluate_missing(cells, episodes=400, unseen=True) == 2  # the one with both is left alone
     assert str(held_out / "unseen_seeds_eval.json") not in [out for out, _ in calls]
 

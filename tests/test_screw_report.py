@@ -12,6 +12,7 @@ import yaml
 
 from tests.conftest import compose_config
 from tests.test_report import ROOT, episodes, fake_run
+from vitac.analysis.status import run_statuses
 
 
 def test_report_draws_the_papers_screw_figure_from_screw_runs(tmp_path):
@@ -64,8 +65,9 @@ def test_the_committed_screw_records_are_what_the_report_makes_of_the_committed_
     from vitac.report import screw_cells, screw_figure
 
     monkeypatch.chdir(ROOT)
-    assert list(screw_cells([Path(runs)], [0, 1, 2], 400)) == [task]
-    screw_figure(task, screw_cells([Path(runs)], [0, 1, 2], 400)[task], 400, tmp_path)
+    cells = screw_cells(run_statuses([Path(runs)]), [0, 1, 2], 400)
+    assert list(cells) == [task]
+    screw_figure(task, cells[task], 400, tmp_path)
     assert json.loads((tmp_path / f"{task}.json").read_text()) == json.loads((ROOT / "docs/data" / f"{task}.json").read_text())
 
 

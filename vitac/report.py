@@ -53,11 +53,11 @@ def table_cells(table: dict) -> list[dict]:
     return [cell for row in table["rows"] for cell in row["seeds"].values()]
 
 
-def screw_cells(dirs: list[Path], seeds: list[int], min_episodes: int) -> dict[str, dict[str, list[dict]]]:
-    """{task: {policy name: its evaluated cells, one per seed}} for the paper's screw figure, one figure per screw task
-    (screw, screw_offthread, screw_insert) found among the runs of experiment=screw/*."""
+def screw_cells(statuses: list[dict], seeds: list[int], min_episodes: int) -> dict[str, dict[str, list[dict]]]:
+    """{task: {policy name: its evaluated cells, one per seed}} for the paper's screw figure from one scan of the runs
+    (run_statuses()), one figure per screw task (screw, screw_offthread, screw_insert) among runs of experiment=screw/*."""
     rows = list(SCREW_ROWS.values())
-    statuses = [s for s in run_statuses(dirs) if s["row"] in rows]  # one scan of the runs, grouped by task
+    statuses = [s for s in statuses if s["row"] in rows]
     by_task = {task: cells_of([s for s in statuses if s["task"] == task], rows, seeds)
                for task in sorted({s["task"] for s in statuses})}
     return {task: {name: [table1.evaluated(cells[(row, seed)], min_episodes) for seed in seeds]
@@ -232,11 +232,13 @@ def main(argv=None):
     for d in args.dirs + args.against:
         if not d.is_dir():
             raise SystemExit(f"{d}: no such directory")
-    table = table1.build(args.dirs, args.seeds, args.min_episodes)
-    screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
+    statuses = run_statuses(args.dirs)
+    table = table1.build(statuses, args.seeds, args.min_episodes)
+    screw = screw_cells(statuses, args.seeds, args.min_episodes)
     if args.evaluate and evaluate_missing(table_cells(table) + screw_runs(screw), args.min_episodes, args.unseen):
-        table = table1.build(args.dirs, args.seeds, args.min_episodes)
-        screw = screw_cells(args.dirs, args.seeds, args.min_episodes)
+        statuses = run_statuses(args.dirs)  # the evaluations wrote new reports
+        table = table1.build(statuses, args.seeds, args.min_episodes)
+        screw = screw_cells(statuses, args.seeds, args.min_episodes)
     args.out.mkdir(parents=True, exist_ok=True)
     md, tex = table1.markdown(table), table1.latex(table)
     (args.out / "table1.md").write_text(md + "\n")
@@ -257,7 +259,7 @@ def main(argv=None):
         write_json(args.out / "symmetry.json", dict(configurations=configurations, min_episodes=args.min_episodes))
         paths += [args.out / "symmetry.json", symmetry.figure(configurations, args.out / "symmetry.png")]
     if args.against:
-        rows = table1.versus(table, table1.build(args.against, args.seeds, args.min_episodes))
+        rows = table1.versus(table, table1.build(run_statuses(args.against), args.seeds, args.min_episodes))
         versus_md = table1.versus_markdown(rows)
         (args.out / "versus.md").write_text(versus_md + "\n")
         write_json(args.out / "versus.json", dict(rows=rows, now=[str(d) for d in args.dirs],

@@ -42,11 +42,6 @@ def run_statuses(dirs: list[Path]) -> list[dict]:
             if config.parent.name != ".hydra"]
 
 
-def sweep_cells(dirs: list[Path], rows: list[str], seeds: list[int]) -> dict:
-    """cells_of() the runs under the given directories."""
-    return cells_of(run_statuses(dirs), rows, seeds)
-
-
 def cells_of(statuses: list[dict], rows: list[str], seeds: list[int]) -> dict:
     """{(row, seed): run status} for every expected cell; of several runs of a cell the furthest trained; a missing
     cell has status "missing" and no run."""
@@ -79,7 +74,7 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     args = parser.parse_args(argv)
     rows = expected_rows(args.experiments)
-    cells = sweep_cells(args.dirs, rows, args.seeds)
+    cells = cells_of(run_statuses(args.dirs), rows, args.seeds)
     print(markdown(cells, rows, args.seeds))
     counts = {s: sum(c["status"] == s for c in cells.values()) for s in ("done", "partial", "missing")}
     print(f"\n{counts['done']} done, {counts['partial']} partial, {counts['missing']} missing of {len(cells)} cells")

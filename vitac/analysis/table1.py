@@ -15,7 +15,7 @@ from pathlib import Path
 
 from vitac.analysis.compare import wall_clock_hours
 from vitac.analysis.outcomes import discordant, episode_steps, mcnemar_exact
-from vitac.analysis.status import sweep_cells
+from vitac.analysis.status import cells_of
 from vitac.run_dirs import EVALUATION, TEACHER_RECORD, UNSEEN_EVALUATION, read_metrics
 from vitac.utils.records import read_whole
 
@@ -99,10 +99,10 @@ def trials(cell: dict, size: int) -> list[tuple[float, float]]:
     return points
 
 
-def build(dirs: list[Path], seeds: list[int], min_episodes: int = 400) -> dict:
-    """Table I as data: per row the paper's value, every seed's cell, ours (mean, std, seeds counted) and the
-    difference to the baseline; then the paired tests."""
-    cells = sweep_cells(dirs, [r.label for r in ROWS], seeds)
+def build(statuses: list[dict], seeds: list[int], min_episodes: int = 400) -> dict:
+    """Table I as data from one scan of the runs (status.run_statuses()): per row the paper's value, every seed's
+    cell, ours (mean, std, seeds counted) and the difference to the baseline; then the paired tests."""
+    cells = cells_of(statuses, [r.label for r in ROWS], seeds)
     rows = []
     for r in ROWS:
         per_seed = {seed: evaluated(cells[(r.label, seed)], min_episodes) for seed in seeds}
