@@ -11,6 +11,7 @@ import yaml
 
 from tests.test_report import episodes, fake_run
 from vitac.analysis import symmetry
+from vitac.analysis.status import run_statuses
 
 # every evaluated wrist + tactile run committed that bears on the prior (docs/results.md names the command)
 SYMMETRY_RUNS = ("docs/data/table1_runs", "docs/data/results/contact_teacher", "docs/data/results/residual_teacher",
@@ -48,7 +49,7 @@ def test_each_weight_is_a_configuration_paired_against_its_unweighted_twin_on_sh
     sym_run(tmp_path, 0, 0.0, episodes(380), balance=0.02)  # the balance penalty instead: against neither
     relative = sym_run(tmp_path, 1, 0.1, episodes(365), weighting="relative")  # its own line; the same twin at 0
     attended = sym_run(tmp_path, 1, 0.1, episodes(355), placement="self_attention")  # its own line too
-    found = symmetry.configurations([tmp_path])
+    found = symmetry.configurations(run_statuses([tmp_path]))
     [relative_result] = [r for r in found if r["weighting"] == "relative"]
     assert relative_result["runs"] == [str(relative)] and relative_result["against_lambda_0"]["only_with"] == 5
     [attended_result] = [r for r in found if r["placement"] == "self_attention"]
@@ -80,6 +81,6 @@ def test_the_committed_symmetry_record_is_what_the_report_makes_of_the_committed
     from tests.test_report import ROOT
 
     monkeypatch.chdir(ROOT)
-    made = symmetry.configurations([Path(d) for d in SYMMETRY_RUNS])
+    made = symmetry.configurations(run_statuses([Path(d) for d in SYMMETRY_RUNS]))
     committed = json.loads((ROOT / "docs/data/symmetry.json").read_text())
     assert json.loads(json.dumps(made)) == committed["configurations"]

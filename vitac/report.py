@@ -254,7 +254,7 @@ def main(argv=None):
         episodes = {name: force_fields.record_fields(ckpt, EVAL_SEED) for name, ckpt in named.items()}
         paths.append(force_fields.figure(episodes, args.out / "force_fields.png"))
     paths += [png for task, cells in screw.items() if (png := screw_figure(task, cells, args.min_episodes, args.out))]
-    configurations = symmetry.configurations(args.dirs, args.min_episodes)
+    configurations = symmetry.configurations(statuses, args.min_episodes)
     if configurations:
         write_json(args.out / "symmetry.json", dict(configurations=configurations, min_episodes=args.min_episodes))
         paths += [args.out / "symmetry.json", symmetry.figure(configurations, args.out / "symmetry.png")]

@@ -14,7 +14,7 @@ import yaml
 
 from vitac.analysis.outcomes import mcnemar_exact
 from vitac.analysis.table1 import mean_std, summed_discordant
-from vitac.run_dirs import EVALUATION, TEACHER_RECORD, run_status, task_name
+from vitac.run_dirs import EVALUATION, TEACHER_RECORD, task_name
 from vitac.utils.records import read_whole
 
 FUSIONS = {"NaiveFusion": "naive", "GatedFusion": "gated", "CrossModalTransformer": "cmt"}
@@ -33,8 +33,10 @@ def regime(cfg: dict) -> str:
     return "aacd" if cfg.get("init_ckpt") and cfg.get("critic_ckpt") else "ppo"
 
 
-def cell(run: Path, min_episodes: int) -> dict | None:
-    """One run's configuration and its evaluation, or None if it is no evaluated wrist + tactile fusion run."""
+def cell(status: dict, min_episodes: int) -> dict | None:
+    """One run's configuration and its evaluation (`status`: its run_status()), or None if it is no evaluated
+    wrist + tactile fusion run."""
+    run = Path(status["run"])
     cfg = read_whole(run / "config.yaml", yaml.safe_load, "a run's config.yaml")
     modalities = set((cfg.get("obs") or {}).get("modalities", []))
     fusion = FUSIONS.get(str((cfg.get("fusion") or {}).get("_target_", "")).rsplit(".", 1)[-1])
@@ -56,17 +58,17 @@ def cell(run: Path, min_episodes: int) -> dict | None:
                 placement=cfg["reg"].get("placement", "encoder") if lambda_sym else "encoder", regime=regime(cfg),
                 balance_penalty=float(cfg["task"].get("balance_penalty_scale", 0.0)), teacher=teacher,
                 teacher_name=teacher_name,
-                seed=cfg.get("seed"), run=str(run), env_steps=run_status(run)["env_steps"], eval_seed=report["seed"],
+                seed=cfg.get("seed"), run=str(run), env_steps=status["env_steps"], eval_seed=report["seed"],
                 success=report["success_rate"], episode_success=report["episode_success"],
                 steps_to_success=report.get("steps_to_success_mean"),
                 field_asymmetry_in_contact=sum(balance) / len(balance) if balance else None)
 
 
-def configurations(dirs: list[Path], min_episodes: int = 400) -> list[dict]:
-    """Every configuration found under `dirs`, its seeds' results, and its paired test against its lambda_sym = 0
-    twin (the same configuration otherwise, on the seeds and held-out episodes both have)."""
-    cells = [c for d in dirs for config in sorted(Path(d).rglob("config.yaml")) if config.parent.name != ".hydra"
-             if (c := cell(config.parent, min_episodes))]
+def configurations(statuses: list[dict], min_episodes: int = 400) -> list[dict]:
+    """Every configuration among the runs of `statuses` (analysis.status.run_statuses: one scan of the directories),
+    its seeds' results, and its paired test against its lambda_sym = 0 twin (the same configuration otherwise, on
+    the seeds and held-out episodes both have)."""
+    cells = [c for status in statuses if (c := cell(status, min_episodes))]
     groups: dict[tuple, list[dict]] = {}
     for c in cells:
         groups.setdefault(tuple(c[k] for k in KEY), []).append(c)
