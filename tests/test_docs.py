@@ -71,3 +71,27 @@ def test_results_page_shows_table_one_as_the_report_wrote_it():
             assert f"{100 * seed['success']:.1f}%" in ours, (label, seed["seed"], ours)
         if len(done) > 1:
             assert ours.startswith(f"{row['mean']:.2f} ± {row['std']:.2f}:"), (label, ours)
+
+
+def test_results_page_shows_the_97_percent_teachers_table_as_the_report_wrote_it():
+    """Every row of docs/results.md's table of the 97% teacher's students is versus_markdown() of the committed
+    docs/data/versus_97_teacher.json (its sensing rows; the privileged rows are the teachers), so pasting a row by hand after a new cell cannot drift from the data."""
+    import json
+
+    from vitac.analysis.table1 import ROWS, versus_markdown
+
+    ROWS_BY_LABEL = {r.label: r for r in ROWS}
+
+    committed = json.loads((ROOT / "docs" / "data" / "versus_97_teacher.json").read_text())
+    sensing = [row for row in committed["rows"] if "P" not in ROWS_BY_LABEL[row["row"]].inputs]  # privileged: teachers
+    page = (ROOT / "docs" / "results.md").read_text().splitlines()
+    for line in versus_markdown(sensing).splitlines():
+        assert line in page, f"docs/results.md lacks the report's row: {line}"
+
+
+def test_docs_name_dates_and_machines_not_sessions():
+    import re
+
+    for doc in [*_pages(), ROOT / "docs" / "data" / "results" / "README.md"]:
+        for n, line in enumerate(doc.read_text().splitlines(), 1):
+            assert not re.search(r"\b(sessions?|sittings?)\b", line, re.I), f"{doc.name}:{n}: {line.strip()}"
